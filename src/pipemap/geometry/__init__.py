@@ -1,0 +1,1 @@
+"""Pure geometry: rotations, poses, cylinders."""
