@@ -1,0 +1,3 @@
+from pipemap.cli import app
+
+app()

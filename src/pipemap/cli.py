@@ -1,0 +1,153 @@
+"""The `pipemap` command: thin wrappers that parse arguments and call library functions."""
+
+from __future__ import annotations
+
+import functools
+import glob as globmod
+import os
+import sys
+from pathlib import Path
+from typing import Callable, List, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from pipemap import __version__
+from pipemap.errors import PipemapError
+
+app = typer.Typer(
+    name="pipemap",
+    help="Metric maps of pipe networks from a crawler robot's single camera.",
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+)
+console = Console()
+err_console = Console(stderr=True)
+
+
+def friendly(fn: Callable) -> Callable:
+    """Turn input problems into one line on stderr and a non-zero exit code, never a traceback."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except PipemapError as exc:
+            err_console.print(f"pipemap: error: {exc.line()}", markup=False, highlight=False, soft_wrap=True)
+            raise typer.Exit(2) from None
+        except KeyboardInterrupt:
+            err_console.print("pipemap: interrupted; nothing was written", markup=False)
+            raise typer.Exit(130) from None
+        except (typer.Exit, typer.Abort):
+            raise
+        except Exception as exc:  # noqa: BLE001 - the last line of defence for the user
+            if os.environ.get("PIPEMAP_DEBUG"):
+                raise
+            first = str(exc).splitlines()[0] if str(exc) else ""
+            err_console.print(
+                f"pipemap: internal error: {type(exc).__name__}: {first} (set PIPEMAP_DEBUG=1 for details)",
+                markup=False,
+                highlight=False,
+                soft_wrap=True,
+            )
+            raise typer.Exit(1) from None
+
+    return wrapper
+
+
+def expand_glob(pattern: str) -> list[Path]:
+    paths = sorted(Path(p) for p in globmod.glob(os.path.expanduser(pattern)))
+    paths = [p for p in paths if p.is_file()]
+    if not paths:
+        raise PipemapError("no files match", pattern)
+    return paths
+
+
+def version_callback(value: bool) -> None:
+    if value:
+        console.print(f"pipemap {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: bool = typer.Option(False, "--version", callback=version_callback, is_eager=True, help="Print the version."),
+) -> None:
+    """Metric maps of pipe networks from a crawler robot's single camera."""
+
+
+@app.command()
+@friendly
+def info(dataset: Path = typer.Argument(..., help="Dataset folder or its dataset.yaml.")) -> None:
+    """Check a dataset folder against the format and summarise it."""
+    from pipemap.dataset import load_dataset
+
+    ds = load_dataset(dataset)
+    n = len(ds)
+    first = ds.read(0)  # reads and checks one frame (size, gain mask)
+    table = Table(title=f"dataset {ds.name}", show_header=False)
+    table.add_row("folder", str(ds.root))
+    table.add_row("frames", f"{n} ({n / ds.fps:.1f} s at {ds.fps:g} fps)")
+    table.add_row("camera", repr(ds.camera))
+    table.add_row("pipe radius", f"{ds.radius_m:.4f} m")
+    table.add_row("gain mask", str(ds.gain_mask_path) if ds.has_gain_mask else "none")
+    table.add_row("first frame mean grey", f"{float(first.image.mean()):.1f}")
+    gt = ds.ground_truth_poses()
+    table.add_row("ground truth", f"{len(gt)} poses, path {gt.path_length():.3f} m" if gt is not None else "none")
+    console.print(table)
+
+
+@app.command()
+@friendly
+def settings(
+    config: Optional[Path] = typer.Option(None, "--config", help="YAML settings file."),
+    set_: List[str] = typer.Option([], "--set", help="Override one setting: section.key=value (repeatable)."),
+) -> None:
+    """Print the effective settings (the papers' values unless overridden) as YAML."""
+    import yaml
+
+    from pipemap.config import load_settings
+
+    s = load_settings(config, set_)
+    typer.echo(yaml.safe_dump(s.to_dict(), sort_keys=False), nl=False)
+
+
+@app.command("gain-mask")
+@friendly
+def gain_mask(
+    images: str = typer.Argument(..., help='Glob of white-card images, e.g. "card/*.png".'),
+    out: Path = typer.Option(Path("gain_mask.png"), "--out", help="16-bit PNG to write."),
+    sigma: Optional[float] = typer.Option(None, "--sigma", help="Gaussian smoothing in pixels (default from settings)."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing output file."),
+) -> None:
+    """Build a flat-field gain mask from white-card images (2010 report, section 3.2)."""
+    from pipemap.config import Settings
+    from pipemap.gain_mask import build_gain_mask, save_gain_mask
+    from pipemap.output import check_new_file
+
+    check_new_file(out, force)
+    paths = expand_glob(images)
+    mask, skipped = build_gain_mask(paths, sigma if sigma is not None else Settings().gain_mask.sigma_px)
+    for p, why in skipped:
+        err_console.print(f"skipped {p}: {why}", markup=False)
+    tmp = out.with_name(f".{out.stem}.partial.png")
+    try:
+        save_gain_mask(tmp, mask)
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    rel = mask / mask.max()
+    console.print(
+        f"gain mask from {len(paths) - len(skipped)} images -> {out} "
+        f"(relative gain {rel.min():.3f}..1.000, mean {rel.mean():.3f})"
+    )
+
+
+def run() -> None:  # pragma: no cover - console entry for `python -m pipemap`
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(run())

@@ -1,0 +1,173 @@
+"""Typed settings for every stage. Defaults are the source papers' values.
+
+Fisheye paper = 'Pipe Mapping with Monocular Fisheye Imagery' (sections III-A..E, IV-B);
+2010 report = 'Towards a Visual Perception System for Pipe Inspection' (sections 3-6).
+Settings load from YAML and take `section.key=value` overrides from the command line;
+every run records the settings it used.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from pipemap.errors import PipemapError
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class FrontendSettings(_Section):
+    """Fisheye feature tracking (fisheye paper III-A)."""
+
+    regions: tuple[int, int] = Field((2, 2), description="image split into rows x cols regions for Harris")
+    corners_per_region: int = Field(200, gt=0, description="strongest Harris corners kept per region (N)")
+    harris_k: float = Field(0.04, gt=0, description="Harris sensitivity")
+    template_size: int = Field(11, gt=0, description="side of the grey template descriptor (px)")
+    template_window: int = Field(31, gt=0, description="neighbourhood the template is interpolated from (px)")
+    match_ratio: float = Field(0.9, gt=0, le=1, description="best/second-best cosine-distance ratio test")
+    ransac_angle_deg: float = Field(0.2, gt=0, description="angular inlier threshold on bearings")
+    ransac_confidence: float = Field(0.999, gt=0, lt=1)
+    epipolar_threshold: float = Field(0.01, gt=0, description="|eta_j^T E eta_i| bound of the guided ZNCC search")
+    zncc_min: float = Field(0.8, gt=-1, le=1, description="minimum ZNCC score of a guided match")
+    keyframe_min_flow_px: float = Field(10.0, ge=0, description="new keyframe when median sparse flow exceeds this")
+    keyframe_min_tracked: float = Field(0.5, ge=0, le=1, description="... or tracked fraction falls below this")
+
+
+class ClassificationSettings(_Section):
+    """Straight vs T-intersection image classification (fisheye paper III-B)."""
+
+    subsample: int = Field(2, gt=0, description="keep every n-th row and column")
+    dark_threshold: float = Field(0.15, gt=0, lt=1, description="dark-blob threshold, fraction of the frame's grey range")
+    erosion_px: int = Field(2, ge=0)
+    ratio_threshold: float = Field(1.5, gt=0, description="straight if L_p / L is below this")
+    min_cluster_keyframes: int = Field(5, gt=0, description="temporal filter: minimum straight/T cluster size")
+
+
+class BundleSettings(_Section):
+    """Sliding-window SBA with cylinder regularisation (fisheye paper III-C, III-D)."""
+
+    window: int = Field(100, gt=1, description="keyframes in the sliding window")
+    step: int = Field(50, gt=0, description="keyframes between window solves")
+    tau: float = Field(2.5e5, ge=0, description="weight of the scene-to-cylinder error (eq. 2)")
+    huber_px: float = Field(1.0, gt=0, description="Huber threshold of the reprojection error")
+    huber_m: float = Field(0.005, gt=0, description="Huber threshold of the point-to-cylinder distance")
+    mad_k: float = Field(3.0, gt=0, description="outliers beyond k x 1.4826 MAD of the Huber-weighted errors")
+    outlier_passes: int = Field(3, ge=0, description="iterations at which MAD outlier removal runs")
+    max_iterations: int = Field(20, gt=0)
+    tee_fit_length_m: float = Field(1.0, gt=0, description="length of straight pipe fitted each side of a tee")
+
+
+class LoopClosureSettings(_Section):
+    """Loop closure by pose-graph optimisation (fisheye paper III-E)."""
+
+    enabled: bool = True
+    candidates_per_section: int = Field(10, gt=0)
+
+
+class AppearanceSettings(_Section):
+    """Dense grey-level appearance map (fisheye paper IV-B) and unrolled wall images."""
+
+    spacing_m: float = Field(0.002, gt=0, description="point spacing on the fitted cylinders")
+    min_theta_deg: float = Field(50.0, ge=0, description="use pixels with colatitude above this ...")
+    max_theta_deg: float = Field(90.0, gt=0, description="... and below this")
+    unrolled_px_m: float = Field(0.002, gt=0, description="metres per pixel of unrolled wall images")
+
+
+class DenseSettings(_Section):
+    """Dense straight-pipe VO (2010 report section 4)."""
+
+    scale: float = Field(0.25, gt=0, le=1, description="image reduction (the report used quarter resolution)")
+    metric: Literal["sad", "ssd", "zncc"] = "zncc"
+    search_px: int = Field(16, gt=0, description="full-search range (+/- px at reduced resolution)")
+    pyramid_levels: int = Field(3, gt=0, description="hierarchical Lucas-Kanade levels")
+    lk_iterations: int = Field(10, gt=0)
+    pixels_per_metre: float | None = Field(None, gt=0, description="zeta; None = from calibration, radius, offset")
+
+
+class SparseSettings(_Section):
+    """Sparse cylinder-constrained VO (2010 report section 5)."""
+
+    grid: tuple[int, int] = Field((6, 8), description="region Harris grid rows x cols")
+    corners_per_cell: int = Field(20, gt=0)
+    nms_px: int = Field(7, gt=0, description="non-maximum suppression window")
+    sigma_w: float = Field(3.0, gt=0, description="Harris integration scale")
+    sigma_d: float = Field(1.5, gt=0, description="Harris derivative scale")
+    harris_k: float = Field(0.04, gt=0)
+    ambiguity_ratio: float = Field(0.8, gt=0, le=1, description="SIFT ambiguity ratio with mutual check")
+    keyframe_min_matches: int = Field(100, gt=0)
+    keyframe_max_flow_px: float = Field(20.0, gt=0)
+    offset_batch_keyframes: int = Field(10, gt=0, description="keyframes of the initial offset C_X, C_Y batch")
+    refine_every: int = Field(50, gt=0, description="N: 6-DOF sliding refinement over the previous 2N")
+    refine_passes: int = Field(2, gt=0)
+
+
+class GainMaskSettings(_Section):
+    """White-card gain mask (2010 report section 3.2)."""
+
+    sigma_px: float = Field(15.0, gt=0, description="Gaussian smoothing of the averaged white-card images")
+
+
+class Settings(_Section):
+    seed: int = Field(0, description="seed of every random choice (RANSAC, sampling)")
+    frontend: FrontendSettings = FrontendSettings()
+    classification: ClassificationSettings = ClassificationSettings()
+    bundle: BundleSettings = BundleSettings()
+    loop_closure: LoopClosureSettings = LoopClosureSettings()
+    appearance: AppearanceSettings = AppearanceSettings()
+    dense: DenseSettings = DenseSettings()
+    sparse: SparseSettings = SparseSettings()
+    gain_mask: GainMaskSettings = GainMaskSettings()
+
+    def to_dict(self) -> dict[str, Any]:
+        return self.model_dump(mode="json")
+
+
+def _first_error(exc: ValidationError) -> tuple[str, str]:
+    err = exc.errors()[0]
+    return ".".join(str(p) for p in err["loc"]), err["msg"]
+
+
+def load_settings(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> Settings:
+    """Defaults, then a YAML file, then `section.key=value` overrides (values parsed as YAML)."""
+    data: dict[str, Any] = {}
+    where = "--set"
+    if path is not None:
+        where = str(path)
+        try:
+            loaded = yaml.safe_load(Path(path).read_text())
+        except FileNotFoundError:
+            raise PipemapError("settings file not found", path) from None
+        except (OSError, yaml.YAMLError) as exc:
+            raise PipemapError(f"cannot parse YAML: {str(exc).splitlines()[0]}", path) from None
+        if loaded is not None and not isinstance(loaded, dict):
+            raise PipemapError("expected a mapping of sections", path)
+        data = loaded or {}
+    for item in overrides:
+        if "=" not in item:
+            raise PipemapError(f"expected section.key=value, got {item!r}", "--set")
+        key, raw = item.split("=", 1)
+        parts = key.strip().split(".")
+        try:
+            value = yaml.safe_load(raw)
+        except yaml.YAMLError:
+            value = raw
+        node = data
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise PipemapError(f"{p} is not a section", "--set", key)
+        node[parts[-1]] = value
+    try:
+        return Settings.model_validate(data)
+    except ValidationError as exc:
+        key, msg = _first_error(exc)
+        raise PipemapError(msg, where, key) from None
+
+
+def save_settings(path: str | Path, settings: Settings) -> None:
+    Path(path).write_text(yaml.safe_dump(settings.to_dict(), sort_keys=False))

@@ -1,0 +1,57 @@
+"""Writing results safely: nothing half-written that looks complete, nothing the user had overwritten."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+from pipemap.errors import PipemapError
+
+
+def check_new_file(path: Path, force: bool = False) -> None:
+    if path.exists() and not force:
+        raise PipemapError("already exists; choose another --out or pass --force to replace it", path)
+    if not path.parent.exists():
+        raise PipemapError("folder does not exist", path.parent)
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    atomic_write_bytes(path, text.encode())
+
+
+@contextlib.contextmanager
+def result_folder(out: Path) -> Iterator[Path]:
+    """Yield a temporary folder beside `out`; on success it is renamed to `out`, on failure removed.
+
+    An existing non-empty `out` is refused, never replaced.
+    """
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise PipemapError("output already exists and is not empty; choose another --out", out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    try:
+        yield tmp
+        if out.exists():
+            out.rmdir()
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
