@@ -145,6 +145,21 @@ def gain_mask(
     )
 
 
+@app.command()
+@friendly
+def evaluate(
+    result_dir: Path = typer.Argument(..., help="Result folder with trajectory.tum (and junctions.yaml)."),
+    dataset_dir: Path = typer.Argument(..., help="Dataset folder with ground_truth/."),
+) -> None:
+    """Compare a result with the ground truth; write RESULT_DIR/metrics.json and print the tables."""
+    from pipemap.evaluation import evaluate as evaluate_result
+    from pipemap.evaluation import print_tables
+
+    result = evaluate_result(result_dir, dataset_dir)
+    print_tables(result, console)
+    console.print(f"metrics written to {result_dir / 'metrics.json'}")
+
+
 def run() -> None:  # pragma: no cover - console entry for `python -m pipemap`
     app()
 

@@ -1,0 +1,87 @@
+"""Rich tables of an EvaluationResult, laid out like the papers' tables."""
+
+from __future__ import annotations
+
+import math
+
+from rich.console import Console
+from rich.table import Table
+
+from pipemap.evaluation.evaluate import EvaluationResult
+from pipemap.evaluation.metrics import DistanceRow
+
+
+def _num(value: float | None, fmt: str) -> str:
+    return "–" if value is None or not math.isfinite(value) else format(value, fmt)
+
+
+def summary_table(result: EvaluationResult) -> Table:
+    t = Table(title=f"Trajectory vs ground truth — {result.dataset}")
+    t.add_column("Metric")
+    t.add_column("Value", justify="right")
+    t.add_row("Poses estimated / associated / ground truth",
+              f"{result.estimated_poses} / {result.associated_poses} / {result.ground_truth_poses}")
+    for label, a in (("rigid SE(3)", result.ate_rigid), ("Sim(3)", result.ate_sim3)):
+        pct = result.ate_rmse_pct(a)
+        t.add_row(f"ATE RMSE, {label} (m)", f"{_num(a.rmse, '.4f')}  ({_num(pct, '.3f')} % of path)")
+        t.add_row(f"ATE max, {label} (m)", _num(a.max, ".4f"))
+    t.add_row("Sim(3) scale (ground truth / estimate)", _num(result.ate_sim3.scale, ".5f"))
+    t.add_row("Path length, ground truth / estimate (m)",
+              f"{_num(result.gt_path_length, '.4f')} / {_num(result.est_path_length, '.4f')}")
+    t.add_row("Path length error, estimate − truth",
+              f"{_num(result.path_length_error, '+.4f')} m  ({_num(result.path_length_error_pct, '+.3f')} %)")
+    return t
+
+
+def distance_travelled_table(result: EvaluationResult) -> Table | None:
+    """The 2010 report's Table 2, in millimetres; error ε = ground truth − estimate."""
+    d = result.distance
+    if d is None:
+        return None
+    t = Table(title="Distance travelled down the pipe (2010 report, Table 2)")
+    t.add_column("Metric")
+    t.add_column("Value", justify="right")
+
+    def block(prefix: str, row: DistanceRow) -> None:
+        t.add_row(f"{prefix}Ground Truth (mm)", _num(1000 * row.ground_truth, ".1f"))
+        t.add_row(f"{prefix}Estimate (mm)", _num(1000 * row.estimate, ".1f"))
+        t.add_row(f"{prefix}Error ε (mm)", _num(1000 * row.error, ".1f"))
+        t.add_row(f"{prefix}Abs Error ε (%)", _num(row.abs_error_pct, ".3f"))
+
+    if not d.forward_and_reverse:
+        block("", d.forward)
+    else:
+        block("Forward ", d.forward)
+        block("Reverse ", d.reverse)
+        block("Total ", d.total)
+    return t
+
+
+def junction_distance_table(result: EvaluationResult) -> Table | None:
+    """The fisheye paper's Table I: centre-to-centre distances; error = estimate − truth."""
+    j = result.junctions
+    if j is None:
+        return None
+    caption = f"max |error| {_num(j.max_abs_error, '.3f')} m ({_num(j.max_abs_error_pct, '.2f')} %)"
+    if not j.counts_agree:
+        caption += f"; {j.estimated_count} estimated vs {j.truth_count} true junctions"
+    t = Table(title="T-intersection centre distances (fisheye paper, Table I)", caption=caption)
+    for name in ("Distance", "Estimate ids", "Truth (m)", "Estimate (m)", "Error (m)", "Error (%)"):
+        t.add_column(name, justify="left" if "Distance" in name or "ids" in name else "right")
+    for p in j.pairs:
+        t.add_row("-".join(p.truth_ids), "-".join(p.estimate_ids), _num(p.ground_truth, ".3f"),
+                  _num(p.estimate, ".3f"), _num(p.error, "+.3f"), _num(p.error_pct, "+.2f"))
+    return t
+
+
+def tables(result: EvaluationResult) -> list[Table]:
+    """All tables that apply to this result, in reading order."""
+    return [t for t in (summary_table(result), distance_travelled_table(result), junction_distance_table(result)) if t is not None]
+
+
+def print_tables(result: EvaluationResult, console: Console | None = None) -> None:
+    console = console or Console()
+    for t in tables(result):
+        console.print(t)
+    for note in result.notes:
+        console.print(f"[dim]note: {note}[/dim]")
