@@ -114,6 +114,60 @@ def settings(
     typer.echo(yaml.safe_dump(s.to_dict(), sort_keys=False), nl=False)
 
 
+def parse_board(text: str) -> tuple[int, int]:
+    try:
+        cols, rows = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise PipemapError(f"expected inner corners as COLSxROWS, e.g. 9x6, got {text!r}", "--board") from None
+    if cols < 2 or rows < 2:
+        raise PipemapError("a board needs at least 2x2 inner corners", "--board")
+    return cols, rows
+
+
+@app.command()
+@friendly
+def calibrate(
+    images: str = typer.Argument(..., help='Glob of checkerboard images, e.g. "calib/*.png".'),
+    board: str = typer.Option("9x6", "--board", help="Inner corners, columns x rows."),
+    square: float = typer.Option(0.025, "--square", help="Square size in metres."),
+    model: str = typer.Option("polynomial", "--model", help="polynomial | kannala_brandt | pinhole."),
+    out: Path = typer.Option(Path("camera.yaml"), "--out", help="Camera file to write."),
+    max_theta_deg: Optional[float] = typer.Option(None, "--max-theta-deg", help="Field of view half-angle to record."),
+    fix: List[str] = typer.Option([], "--fix", help="Keep a parameter at its initial value (repeatable), e.g. k3."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing output file."),
+) -> None:
+    """Calibrate a camera from checkerboard images: RMS and per-view reprojection error, then the camera block."""
+    from pipemap.camera import MODELS
+    from pipemap.camera.calibration import calibrate_images, save_calibration
+    from pipemap.output import check_new_file
+
+    if model not in MODELS:
+        raise PipemapError(f"unknown camera model {model!r} (expected one of {', '.join(MODELS)})", "--model")
+    if not square > 0:
+        raise PipemapError("must be positive", "--square")
+    cols_rows = parse_board(board)
+    check_new_file(out, force)
+    paths = expand_glob(images)
+    with console.status(f"calibrating {model} from {len(paths)} images"):
+        result = calibrate_images(paths, cols_rows, square, model, max_theta_deg=max_theta_deg, fix=tuple(fix), source=images)
+    table = Table(title=f"{model} calibration: RMS {result.rms_px:.3f} px over {len(result.images)} views")
+    table.add_column("image")
+    table.add_column("RMS (px)", justify="right")
+    for path, rms in zip(result.images, result.per_view_rms):
+        table.add_row(Path(path).name, f"{rms:.3f}")
+    for path, why in result.skipped:
+        table.add_row(Path(path).name, f"skipped: {why}")
+    console.print(table)
+    console.print(repr(result.camera), markup=False)
+    tmp = out.with_name(f".{out.name}.partial")
+    try:
+        save_calibration(tmp, result)
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    console.print(f"camera written to {out}")
+
+
 @app.command("gain-mask")
 @friendly
 def gain_mask(

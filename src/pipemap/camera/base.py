@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from abc import ABC, abstractmethod
 from typing import ClassVar
 
@@ -79,6 +80,14 @@ class CameraModel(ABC):
 
     def with_params(self, params) -> "CameraModel":
         return type(self)(self.width, self.height, params, self._given_max_theta_deg)
+
+    def for_optimiser(self, params) -> "CameraModel":
+        """A copy with new parameters whose `project_jacobian` is usable even when the parameters fail
+        validation: an optimiser's trial steps may cross such a region on the way to the true camera.
+        Only the projection maths is meaningful on it; build a checked camera for the final result."""
+        trial = copy.copy(self)
+        trial.params = np.asarray(params, dtype=float).reshape(self.params.shape)
+        return trial
 
     def in_image(self, pixels: np.ndarray) -> np.ndarray:
         u, v = pixels[..., 0], pixels[..., 1]

@@ -1,0 +1,1 @@
+"""The simulator: pipe networks, wall textures, LED lighting, camera sensor and renderer."""
