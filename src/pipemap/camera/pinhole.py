@@ -37,7 +37,7 @@ class PinholeCamera(CameraModel):
         if limit_r < np.inf and (reach_idx >= turn[0]):
             raise PipemapError(
                 "the pinhole distortion is not monotone over the field of view "
-                f"(it turns back at normalised radius {limit_r:.3f}, the image needs {reach:.3f})",
+                f"(distorted radius peaks at {rd[turn[0]]:.3f}, the image corners need {reach:.3f})",
                 key="camera.params",
             )
         self._r_limit = float(limit_r)
