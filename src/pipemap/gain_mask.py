@@ -33,11 +33,15 @@ def build_gain_mask(paths: list[Path], sigma_px: float = 15.0) -> tuple[np.ndarr
         count += 1
     if count == 0:
         raise PipemapError("none of the white-card images could be read", paths[0])
-    mean = (total / count).astype(np.float32)
-    mask = cv2.GaussianBlur(mean, (0, 0), sigmaX=sigma_px, sigmaY=sigma_px, borderType=cv2.BORDER_REFLECT)
+    return smooth_mask(total / count, sigma_px, paths[0]), skipped
+
+
+def smooth_mask(mean: np.ndarray, sigma_px: float, where=None) -> np.ndarray:
+    """Gaussian-smoothed average white-card image: the high-frequency noise removed, the fall-off kept."""
+    mask = cv2.GaussianBlur(mean.astype(np.float32), (0, 0), sigmaX=sigma_px, sigmaY=sigma_px, borderType=cv2.BORDER_REFLECT)
     if mask.max() <= 0:
-        raise PipemapError("the white-card images are black", paths[0])
-    return mask, skipped
+        raise PipemapError("the white-card images are black; cannot make a gain mask", where)
+    return mask
 
 
 def save_gain_mask(path: Path, mask: np.ndarray) -> None:

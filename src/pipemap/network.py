@@ -126,4 +126,4 @@ def load_network(path: str | Path) -> PipeNetwork:
 
 
 def save_network(path: str | Path, network: PipeNetwork) -> None:
-    Path(path).write_text(yaml.safe_dump(network.to_dict(), sort_keys=False))
+    Path(path).write_text(yaml.safe_dump(network.to_dict(), sort_keys=False, default_flow_style=None))

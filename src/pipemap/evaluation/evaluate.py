@@ -218,14 +218,31 @@ def evaluate(result_dir: str | Path, dataset_dir: str | Path, write: bool = True
 
 
 def _straight_run(network: PipeNetwork, est: Trajectory, gt: Trajectory, notes: list[str]):
-    if len(network.segments) != 1:
-        notes.append(f"network has {len(network.segments)} segments: distance travelled is for a single straight pipe")
+    axis = straight_axis(network)
+    if axis is None:
+        notes.append("the network is not one straight pipe: distance travelled is not defined")
         return None, None
-    d = distance_travelled(est.positions, gt.positions, network.segments[0].axis)
+    d = distance_travelled(est.positions, gt.positions, axis)
     turnaround = None
     if d.forward_and_reverse:
         turnaround = (float(gt.timestamps[d.gt_turnaround_index]), float(est.timestamps[d.est_turnaround_index]))
     return d, turnaround
+
+
+def straight_axis(network: PipeNetwork, max_bend_deg: float = 2.0) -> np.ndarray | None:
+    """The axis of a network that is one straight pipe, possibly built of several slightly sagging or
+    misaligned pieces joined end to end; None for a network with junctions or bends."""
+    if network.junctions or not network.segments:
+        return None
+    first, last = network.segments[0], network.segments[-1]
+    axis = last.end - first.start
+    if np.linalg.norm(axis) == 0:
+        return None
+    axis = axis / np.linalg.norm(axis)
+    cos_min = np.cos(np.radians(max_bend_deg))
+    if any(float(seg.axis @ axis) < cos_min for seg in network.segments):
+        return None
+    return axis
 
 
 def _junctions(network: PipeNetwork, path: Path, notes: list[str]) -> JunctionTable | None:

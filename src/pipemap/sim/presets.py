@@ -1,0 +1,280 @@
+"""Named simulation set-ups: the papers' pipes, cameras, lights and routes.
+
+Each preset builds a `Setup` for a requested image size (the camera's intrinsics scale with the
+width so that the field of view stays the same) and route variant. When fewer frames are asked
+for, simulate() keeps the first N frames of the route at the same spacing.
+
+- paper-loop: the fisheye paper's 400 mm network (Fig. 5): four tees T1..T4 placed to fit the
+  six laser distances of Table I, each with a closed stub; route "A" start-T1-T2-T3-T4-end,
+  route "B" start-T4-T3-T2-T1-T4-end; 1280x960 polynomial fisheye (190 deg), 7.5 fps, 1 cm.
+- paper-straight-6in / paper-straight-16in: the 2010 report's pipes 1 and 2 (Table 1), camera
+  looking up at the wall with image x along the pipe (report section 5.3), 4 LEDs; routes
+  "forward" and "forward-reverse" with the report's frame counts.
+- fisheye-straight: one straight 400 mm pipe seen by the fisheye.
+- demo-loop: a small 2 m x 1.5 m tee loop at 640x480, fast.
+- white-card: the 2010 report's gain-mask images: a white pipe wall, LEDs on, camera still.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from pipemap.camera import KannalaBrandtCamera, CameraModel, PinholeCamera, PolynomialCamera
+from pipemap.errors import PipemapError
+from pipemap.sim.network_model import PipeScene, route_polyline, straight_scene, tee_loop_scene
+from pipemap.sim.render import Appearance
+from pipemap.sim.route import Drive
+
+# Fisheye paper, Table I: laser distances between tee centres (metres).
+TABLE_I = {("T1", "T2"): 8.150, ("T2", "T3"): 8.174, ("T3", "T4"): 8.159, ("T4", "T1"): 8.110,
+           ("T1", "T3"): 11.468, ("T2", "T4"): 11.493}
+FISHEYE_BASE = dict(width=1280, height=960, k1=290.0, k2=-8.0, k3=2.0, k4=-0.4, max_theta_deg=95.0)
+
+
+@dataclass
+class Setup:
+    """Everything simulate() needs to render one dataset."""
+
+    name: str
+    scene: PipeScene
+    camera: CameraModel
+    path_vertices: np.ndarray  # the route's axis polyline
+    drive: Drive
+    appearance: Appearance
+    fps: float
+    frames: int | None = None  # the route's natural frame count when fixed (None: by distance)
+    still: bool = False  # every frame at the route's first pose (white card)
+    gain_mask: bool = False
+    notes: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PresetInfo:
+    name: str
+    description: str
+    routes: tuple[str, ...]
+    build: Callable[..., Setup] | None  # build(width, height, route, seed) -> Setup
+    writer: Callable | None = None  # a preset that writes its own folder (e.g. calibration boards)
+
+
+PRESETS: dict[str, PresetInfo] = {}
+
+
+def register_preset(name: str, description: str, routes=("default",), build=None, writer=None) -> None:
+    """Add a preset: `build(width, height, route, seed) -> Setup`, or `writer(folder, width=,
+    height=, frames=, seed=, route=, progress=)` that fills the (temporary) dataset folder itself."""
+    PRESETS[name] = PresetInfo(name, description, tuple(routes), build, writer)
+
+
+def list_presets() -> dict[str, str]:
+    """Preset name -> one-line description (with its routes), in registration order."""
+    return {p.name: f"{p.description} (routes: {', '.join(p.routes)})" for p in PRESETS.values()}
+
+
+def get_setup(name: str, width: int | None = None, height: int | None = None, route: str | None = None,
+              seed: int = 0) -> Setup:
+    info = _info(name)
+    if info.build is None:
+        raise PipemapError(f"preset {name!r} writes its own dataset folder", key="preset")
+    route = route or info.routes[0]
+    if route not in info.routes:
+        raise PipemapError(f"preset {name} has no route {route!r} (expected one of {', '.join(info.routes)})", key="route")
+    return info.build(width, height, route, seed)
+
+
+def _info(name: str) -> PresetInfo:
+    if name not in PRESETS:
+        raise PipemapError(f"unknown preset {name!r} (expected one of {', '.join(PRESETS)})", key="preset")
+    return PRESETS[name]
+
+
+# -- cameras ----------------------------------------------------------------------------------------
+
+
+def _size(width, height, base_w: int, base_h: int) -> tuple[int, int, float]:
+    if width is None and height is None:
+        return base_w, base_h, 1.0
+    if width is None:
+        width = int(round(height * base_w / base_h))
+    if height is None:
+        height = int(round(width * base_h / base_w))
+    for v, key in ((width, "width"), (height, "height")):
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 16:
+            raise PipemapError(f"image {key} must be an integer of at least 16 pixels, got {v!r}", key=key)
+    return int(width), int(height), min(width / base_w, height / base_h)
+
+
+def fisheye_camera(width=None, height=None) -> PolynomialCamera:
+    """The fisheye paper's 190 deg lens (polynomial model, eq. 1), scaled to the image size."""
+    b = FISHEYE_BASE
+    w, h, f = _size(width, height, b["width"], b["height"])
+    params = dict(k1=b["k1"] * f, k2=b["k2"] * f, k3=b["k3"] * f, k4=b["k4"] * f, u0=(w - 1) / 2, v0=(h - 1) / 2)
+    return PolynomialCamera(w, h, params, b["max_theta_deg"])
+
+
+def perspective_camera(base_w: int, base_h: int, hfov_deg: float, k1: float, k2: float, width=None, height=None) -> PinholeCamera:
+    """A pinhole camera with mild radial distortion and the given horizontal angle of view."""
+    w, h, _ = _size(width, height, base_w, base_h)
+    # fx such that the distorted image edge sits at hfov / 2
+    xn = np.tan(np.radians(hfov_deg) / 2)
+    rad = 1 + k1 * xn**2 + k2 * xn**4
+    fx = (w / 2) / (xn * rad)
+    params = dict(fx=fx, fy=fx, cx=(w - 1) / 2, cy=(h - 1) / 2, k1=k1, k2=k2, p1=0.0, p2=0.0, k3=0.0)
+    return PinholeCamera(w, h, params)
+
+
+# -- networks ---------------------------------------------------------------------------------------
+
+
+def table_i_corners() -> np.ndarray:
+    """T1..T4 in the plane z = 0 fitting Table I's six distances (least squares): T1 at the
+    origin, T2 on +x, the loop counter-clockwise seen from above."""
+    from scipy.optimize import least_squares
+
+    ids = ["T1", "T2", "T3", "T4"]
+    pairs = [(ids.index(a), ids.index(b), d) for (a, b), d in TABLE_I.items()]
+
+    def pts(x):
+        return np.array([[0, 0], [x[0], 0], [x[1], x[2]], [x[3], x[4]]])
+
+    def res(x):
+        p = pts(x)
+        return [np.linalg.norm(p[i] - p[k]) - d for i, k, d in pairs]
+
+    x = least_squares(res, [8.15, 8.15, 8.15, 0.0, 8.15], xtol=1e-14, ftol=1e-14, gtol=1e-14).x
+    return np.concatenate([pts(x), np.zeros((4, 1))], axis=1)
+
+
+# -- presets ----------------------------------------------------------------------------------------
+
+
+def _loop_setup(name, corners, width, height, route, seed, *, fisheye_scale_w=None, stub=0.6, piece=2.75,
+                sag=0.004, misalign=0.002, start_back=1.5, end_before=1.5) -> Setup:
+    """A tee loop. Route A: start on side T4-T1, turn at T1, T2, T3, T4, end on side T4-T1 short
+    of the start. Route B: start on side T1-T4 heading to T4, turn at T4, T3, T2, T1, T4, end on
+    side T4-T3."""
+    scene = tee_loop_scene(corners, 0.2, stub_length=stub, piece_length=piece, sag_m=sag, misalign_m=misalign, seed=seed)
+    n = len(corners)
+    if route == "A":
+        legs = [(f"S{n}", False)] + [(f"S{k}", False) for k in range(1, n + 1)]
+        side = np.linalg.norm(corners[0] - corners[-1])
+        start, end = side - start_back, -(start_back + end_before)
+    else:
+        legs = [(f"S{n}", True)] + [(f"S{k}", True) for k in range(n - 1, 0, -1)] + [(f"S{n}", True), (f"S{n - 1}", True)]
+        side = np.linalg.norm(corners[0] - corners[-1])
+        start, end = side - start_back, -(np.linalg.norm(corners[-1] - corners[-2]) - end_before)
+    poly = route_polyline(scene, legs)
+    cam = fisheye_camera(width, height) if fisheye_scale_w is None else fisheye_camera(
+        width or fisheye_scale_w[0], height or fisheye_scale_w[1])
+    drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", turn_radius_m=0.2, start_m=float(start),
+                  end_m=float(end))
+    return Setup(name, scene, cam, poly, drive, Appearance(mm_per_px=1.0), 7.5)
+
+
+def _paper_loop(width, height, route, seed):
+    return _loop_setup("paper-loop", table_i_corners(), width, height, route, seed)
+
+
+def _demo_loop(width, height, route, seed):
+    corners = np.array([[0, 0, 0], [2.0, 0, 0], [2.0, 1.5, 0], [0, 1.5, 0]], float)
+    s = _loop_setup("demo-loop", corners, width, height, route, seed, fisheye_scale_w=(640, 480), stub=0.4,
+                    piece=1.0, sag=0.002, misalign=0.001, start_back=0.6, end_before=0.4)
+    return s
+
+
+def _fisheye_straight(width, height, route, seed):
+    scene = straight_scene(6.0, 0.2, piece_length=2.0, sag_m=0.003, misalign_m=0.0015, seed=seed)
+    drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", start_m=0.5, end_m=5.0, reverse=route == "forward-reverse")
+    return Setup("fisheye-straight", scene, fisheye_camera(width, height), scene.runs["S1"], drive,
+                 Appearance(mm_per_px=1.0), 7.5)
+
+
+def _straight_2010(name, *, length, diameter, gt_mm, base, hfov, k1, k2, fps, frames, offset_down, ring, mm_px,
+                   width, height, route, seed, vignetting):
+    radius = diameter / 2
+    scene = straight_scene(length, radius, seed=seed)
+    cam = perspective_camera(base[0], base[1], hfov, k1, k2, width, height)
+    n = frames[route]
+    travel = gt_mm / 1000.0
+    start = (length - travel) / 2
+    legs = 2 if route == "forward-reverse" else 1
+    pause = 8
+    spacing = travel * legs / (n - 1 - (pause if legs == 2 else 0))
+    drive = Drive(spacing_m=spacing, speed_variation=0.15, pause_frames=pause, offset_down_m=offset_down,
+                  look="up", wobble_deg=0.3, wobble_m=0.001, start_m=start, end_m=start + travel,
+                  reverse=route == "forward-reverse")
+    ap = Appearance(texture_style="procedural", mm_per_px=mm_px, n_leds=4, led_phase_deg=45.0, led_ring_radius_m=ring,
+                    led_beam_half_angle_deg=40.0, specular_strength=0.1, vignetting=vignetting)
+    return Setup(name, scene, cam, scene.runs["S1"], drive, ap, fps,
+                 notes={"report_frames": n, "distance_m": travel})
+
+
+def _six_inch(width, height, route, seed):
+    # 2010 report Table 1, pipe 1: 6 m, 153.32 mm inside, dragonfly 1024x768 at 7.5 fps, 70 deg;
+    # datasets 1/2 forward (4256, 4176 images), dataset 3 forward & reverse (3369 images).
+    return _straight_2010("paper-straight-6in", length=6.0, diameter=0.15332, gt_mm=5844.4, base=(1024, 768), hfov=70.0,
+                          k1=-0.12, k2=0.02, fps=7.5, frames={"forward": 4256, "forward-reverse": 3369},
+                          offset_down=0.025, ring=0.025, mm_px=0.4, width=width, height=height, route=route, seed=seed,
+                          vignetting=0.35)
+
+
+def _sixteen_inch(width, height, route, seed):
+    # pipe 2: 4 m, 387.56 mm inside, firefly 640x480 at 30 fps, 25 deg; forward & reverse, 2392 images.
+    return _straight_2010("paper-straight-16in", length=4.0, diameter=0.38756, gt_mm=3391.0, base=(640, 480), hfov=25.0,
+                          k1=-0.05, k2=0.0, fps=30.0, frames={"forward-reverse": 2392, "forward": 1196},
+                          offset_down=0.07, ring=0.04, mm_px=0.5, width=width, height=height, route=route, seed=seed,
+                          vignetting=0.15)
+
+
+def _white_card(width, height, route, seed):
+    s = _six_inch(width, height, "forward", seed)
+    ap = replace(s.appearance, texture_style="white", mm_per_px=1.0)
+    drive = replace(s.drive, wobble_deg=0.0, wobble_m=0.0, speed_variation=0.0)
+    return Setup("white-card", s.scene, s.camera, s.path_vertices, drive, ap, s.fps, frames=10, still=True,
+                 gain_mask=True)
+
+
+register_preset("paper-loop", "fisheye paper network: 400 mm tee loop after Table I, 190 deg fisheye 1280x960, 7.5 fps",
+                ("A", "B"), _paper_loop)
+register_preset("paper-straight-6in", "2010 report pipe 1: 6 m x 153.32 mm, perspective 1024x768 70 deg, 4 LEDs",
+                ("forward", "forward-reverse"), _six_inch)
+register_preset("paper-straight-16in", "2010 report pipe 2: 4 m x 387.56 mm, perspective 640x480 25 deg, 4 LEDs",
+                ("forward-reverse", "forward"), _sixteen_inch)
+register_preset("fisheye-straight", "one straight 6 m x 400 mm pipe, 190 deg fisheye 1280x960",
+                ("forward", "forward-reverse"), _fisheye_straight)
+register_preset("demo-loop", "small 2 m x 1.5 m tee loop, fisheye 640x480 (fast)", ("A", "B"), _demo_loop)
+register_preset("white-card", "2010 report gain-mask images: white wall, LEDs on, still camera; writes gain_mask.png",
+                ("default",), _white_card)
+
+
+def _calibration(folder: Path, *, width=None, height=None, frames=None, seed=0, route=None, progress=None) -> None:
+    """Checkerboard views through the chosen model: images/ and camera.yaml (the true camera and poses)."""
+    from pipemap.sim.board import save_board_views
+
+    model = route or "polynomial"
+    if model not in CALIBRATION_MODELS:
+        raise PipemapError(f"preset calibration has no route {model!r} (expected one of {', '.join(CALIBRATION_MODELS)})",
+                           key="route")
+    if model == "pinhole":
+        camera = perspective_camera(1024, 768, 70.0, -0.12, 0.02, width, height)
+    else:
+        camera = fisheye_camera(width, height)
+        if model == "kannala_brandt":
+            f = camera.params[0]
+            camera = KannalaBrandtCamera(camera.width, camera.height,
+                                         dict(fx=f, fy=f, cx=camera.params[4], cy=camera.params[5],
+                                              k1=-0.02, k2=0.003, k3=0.0, k4=0.0), camera.max_theta_deg)
+    n = 20 if frames is None else int(frames)
+    if n < 3:
+        raise PipemapError(f"calibration needs at least 3 views, got {n}", key="frames")
+    save_board_views(folder, camera, n_views=n, seed=seed)
+    if progress is not None:
+        progress(n, n)
+
+
+CALIBRATION_MODELS = ("polynomial", "kannala_brandt", "pinhole")
+register_preset("calibration", "9x6 checkerboard views (25 mm squares) for pipemap calibrate; route = camera model",
+                CALIBRATION_MODELS, writer=_calibration)

@@ -1,0 +1,198 @@
+"""Render a preset into a dataset folder (spec/formats.md) with exact ground truth.
+
+The folder is written into a temporary sibling and renamed into place at the end; an existing
+non-empty `out` is refused. Frames stream to disk one by one (a writer thread encodes PNGs while
+the next frame renders; at most two frames wait in the queue), so memory does not grow with
+the number of frames.
+
+Frame count: `frames=N` keeps the first N frames of the preset's route at its spacing
+(`spacing_m` overrides the spacing, e.g. to cover a whole loop in fewer frames).
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+import yaml
+
+from pipemap.errors import PipemapError
+from pipemap.gain_mask import save_gain_mask, smooth_mask
+from pipemap.output import result_folder
+from pipemap.sim.presets import PRESETS, Setup, _info, get_setup, list_presets
+from pipemap.sim.render import Renderer, frame_rng
+from pipemap.sim.route import AxisPath, camera_trajectory, drive_distances, visits
+from pipemap.network import save_network
+from pipemap.trajectory import Trajectory, write_tum
+
+__all__ = ["simulate", "list_presets", "plan", "Plan", "PRESETS"]
+
+GAIN_MASK_SIGMA_PX = 15.0  # at 1024 px wide (the report's pipe 1 camera); scales with the width
+
+
+class Plan:
+    """A preset resolved to a camera, a scene, the frame poses and the visited junctions."""
+
+    def __init__(self, setup: Setup, trajectory: Trajectory, visits: list[str], path: AxisPath, s: np.ndarray):
+        self.setup = setup
+        self.trajectory = trajectory
+        self.visits = visits
+        self.path = path
+        self.s = s
+
+    def __len__(self) -> int:
+        return len(self.trajectory)
+
+
+def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, route=None, spacing_m=None) -> Plan:
+    """Resolve a preset: the setup, every frame's true pose and the junction visits."""
+    if frames is not None and (not isinstance(frames, (int, np.integer)) or isinstance(frames, bool) or frames < 1):
+        raise PipemapError(f"the number of frames must be a positive integer, got {frames!r}", key="frames")
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
+        raise PipemapError(f"the seed must be an integer, got {seed!r}", key="seed")
+    setup = get_setup(preset, width, height, route, int(seed))
+    if spacing_m is not None:
+        if not spacing_m > 0:
+            raise PipemapError(f"frame spacing must be positive, got {spacing_m}", key="spacing_m")
+        from dataclasses import replace
+
+        setup.drive = replace(setup.drive, spacing_m=float(spacing_m))
+    path = AxisPath(setup.path_vertices, setup.drive.turn_radius_m)
+    if setup.still:
+        n = frames or setup.frames or 1
+        s = np.full(n, setup.drive.start_m)
+    else:
+        s = drive_distances(path.length, setup.drive, int(seed), frames)
+    traj = camera_trajectory(path, s, setup.drive, setup.fps, int(seed))
+    return Plan(setup, traj, visits(path, s, setup.scene.junctions), path, s)
+
+
+def simulate(preset: str, out: Path, *, width: int | None = None, height: int | None = None, frames: int | None = None,
+             seed: int = 0, route: str | None = None, progress: Callable[[int, int], None] | None = None,
+             spacing_m: float | None = None, motion_blur: int = 1) -> Path:
+    """Render `preset` into the dataset folder `out` and return it.
+
+    width/height: image size (intrinsics scale, field of view kept); frames: the first N frames
+    of the route; seed: textures, wobble, speed and sensor noise; route: the preset's variant
+    (list_presets() names them); progress(i, n) after each frame; motion_blur: sub-frame renders
+    averaged per frame (1: none), spread over the motion since the previous frame.
+    """
+    out = Path(out)
+    info = _info(preset)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise PipemapError("output already exists and is not empty; choose another --out", out)
+    if info.build is None:
+        with result_folder(out) as tmp:
+            info.writer(tmp, width=width, height=height, frames=frames, seed=seed, route=route, progress=progress)
+        return out
+    p = plan(preset, width=width, height=height, frames=frames, seed=seed, route=route, spacing_m=spacing_m)
+    if not isinstance(motion_blur, (int, np.integer)) or motion_blur < 1:
+        raise PipemapError(f"motion blur takes a number of sub-frames >= 1, got {motion_blur!r}", key="motion_blur")
+    setup = p.setup
+    renderer = Renderer(setup.scene, setup.camera, setup.appearance, seed=int(seed))
+    n = len(p)
+    with result_folder(out) as tmp:
+        (tmp / "images").mkdir()
+        (tmp / "ground_truth").mkdir()
+        mean = np.zeros((setup.camera.height, setup.camera.width), np.float64) if setup.gain_mask else None
+        with _PngWriter() as writer:
+            for i in range(n):
+                img = renderer.render(_sub_poses(p, i, motion_blur), frame_rng(seed, i))
+                if mean is not None:
+                    mean += img
+                writer.put(tmp / "images" / f"{i:06d}.png", img)
+                if progress is not None:
+                    progress(i + 1, n)
+        doc = {
+            "format": "pipemap-dataset/1",
+            "name": f"{preset}" + (f"-{route}" if route else ""),
+            "images": "images/*.png",
+            "fps": float(setup.fps),
+            "camera": setup.camera.to_dict(),
+            "pipe": {"radius_m": float(setup.scene.radius)},
+        }
+        if mean is not None:
+            _write_gain_mask(tmp / "gain_mask.png", mean / n, setup.camera.width)
+            doc["gain_mask"] = "gain_mask.png"
+        (tmp / "dataset.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+        write_tum(tmp / "ground_truth" / "poses.tum", p.trajectory,
+                  header=f"pipemap simulate {preset} seed {seed}: true T_wc, timestamp = index / fps")
+        save_network(tmp / "ground_truth" / "network.yaml", setup.scene.network(p.visits))
+        record = {
+            "preset": preset, "route": route, "seed": int(seed), "frames": n, "motion_blur": int(motion_blur),
+            "exposure": float(renderer.exposure), "drive": setup.drive.to_dict(),
+            "appearance": setup.appearance.to_dict(), "path_length_m": float(p.path.length),
+            "driven_m": [float(p.s[0]), float(p.s[-1])], "notes": setup.notes,
+        }
+        (tmp / "ground_truth" / "simulation.yaml").write_text(yaml.safe_dump(_plain(record), sort_keys=False))
+    return out
+
+
+def _plain(x):
+    """numpy scalars and arrays inside dicts/lists -> plain Python, for YAML."""
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def _sub_poses(p: Plan, i: int, k: int):
+    R, t = p.trajectory.rotations, p.trajectory.positions
+    if k == 1 or i == 0:
+        return (R[i], t[i])
+    # positions interpolate linearly; rotations share the small step through the nearer pose
+    out = []
+    for a in (np.arange(k) + 0.5) / k:
+        out.append((R[i] if a > 0.5 else R[i - 1], (1 - a) * t[i - 1] + a * t[i]))
+    return out
+
+
+def _write_gain_mask(path: Path, mean: np.ndarray, width: int) -> None:
+    save_gain_mask(path, smooth_mask(mean, GAIN_MASK_SIGMA_PX * width / 1024, path))
+
+
+class _PngWriter:
+    """Encodes and writes PNGs on a thread (OpenCV releases the GIL) while the next frame renders."""
+
+    def __init__(self, depth: int = 2):
+        self.q: queue.Queue = queue.Queue(maxsize=depth)
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def _run(self):
+        while True:
+            item = self.q.get()
+            if item is None:
+                return
+            path, img = item
+            if self.error is None:
+                try:
+                    if not cv2.imwrite(str(path), img):
+                        raise PipemapError("cannot write image", path)
+                except BaseException as exc:  # handed to the main thread
+                    self.error = exc
+
+    def put(self, path: Path, img: np.ndarray) -> None:
+        if self.error is not None:
+            raise self.error
+        self.q.put((path, img))
+
+    def __exit__(self, exc_type, exc, tb):
+        self.q.put(None)
+        self.thread.join()
+        if exc_type is None and self.error is not None:
+            raise self.error
+        return False

@@ -1,0 +1,62 @@
+"""`pipemap simulate` and `pipemap evaluate` together: ground truth scores zero, a 1 % scaled copy 1 %."""
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from pipemap.cli import app
+from pipemap.dataset import load_dataset
+from pipemap.trajectory import Trajectory, read_tum, write_tum
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def straight_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "fs"
+    r = runner.invoke(app, ["simulate", "fisheye-straight", "--route", "forward-reverse", "--out", str(out),
+                            "--width", "96", "--height", "72", "--spacing", "0.25"])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def estimate(tmp_path, dataset, scale):
+    gt = read_tum(dataset / "ground_truth" / "poses.tum")
+    result = tmp_path / "result"
+    result.mkdir()
+    keyframes = np.arange(0, len(gt), 2)  # an estimate holds only keyframes
+    write_tum(result / "trajectory.tum", Trajectory(gt.timestamps[keyframes], gt.positions[keyframes] * scale,
+                                                    gt.rotations[keyframes]))
+    return result
+
+
+def test_simulated_dataset_loads(straight_run):
+    ds = load_dataset(straight_run)
+    assert len(ds) == len(read_tum(straight_run / "ground_truth/poses.tum")) > 20
+    assert ds.network() is not None and len(ds.network().segments) == 3  # misaligned pieces
+
+
+@pytest.mark.parametrize("scale", [1.0, 1.01])
+def test_evaluate_ground_truth_and_scaled_copy(tmp_path, straight_run, scale):
+    result = estimate(tmp_path, straight_run, scale)
+    r = runner.invoke(app, ["evaluate", str(result), str(straight_run)])
+    assert r.exit_code == 0, r.output
+    m = json.loads((result / "metrics.json").read_text())
+    expected = 100 * (scale - 1)
+    assert m["path_length"]["error_pct"] == pytest.approx(expected, abs=1e-6)
+    d = m["distance_travelled"]
+    assert d["forward_and_reverse"]
+    assert d["forward"]["abs_error_pct"] == pytest.approx(expected, abs=1e-4)  # own axis vs true axis
+    assert d["reverse"]["abs_error_pct"] == pytest.approx(expected, abs=1e-4)
+    assert m["ate"]["sim3"]["rmse_m"] < 1e-9
+    if scale == 1.0:
+        assert m["ate"]["rigid"]["rmse_m"] < 1e-9
+    else:
+        assert m["ate"]["rigid"]["rmse_m"] > 1e-3
+
+
+def test_evaluate_missing_trajectory_is_one_line(tmp_path, straight_run):
+    r = runner.invoke(app, ["evaluate", str(tmp_path), str(straight_run)])
+    assert r.exit_code == 2 and "trajectory.tum" in r.output
