@@ -77,6 +77,31 @@ class LedRing:
         return _light(self, points_cam, normals_cam, float(shininess))[1]
 
 
+def _power(x: np.ndarray, exponent: float) -> None:
+    """x **= exponent in place for x >= 0; whole exponents by repeated squaring (cheaper than log/exp)."""
+    if exponent == 1:
+        return
+    k = int(round(exponent))
+    if abs(exponent - k) > 1e-9 or not 1 <= k <= 256:
+        with np.errstate(divide="ignore"):
+            np.log(x, out=x)
+        x *= np.float32(exponent)
+        np.exp(x, out=x)
+        return
+    base = x.copy()
+    result_set = False
+    while k:
+        if k & 1:
+            if result_set:
+                x *= base
+            else:
+                np.copyto(x, base)
+                result_set = True
+        k >>= 1
+        if k:
+            base *= base
+
+
 def _light(leds: LedRing, points, normals, shininess: float | None) -> tuple[np.ndarray, np.ndarray | None]:
     p = np.asarray(points, np.float32)
     n = np.asarray(normals, np.float32)
@@ -120,10 +145,7 @@ def _light(leds: LedRing, points, normals, shininess: float | None) -> tuple[np.
             beam = pa_ @ a_off
             beam *= inv
             np.maximum(beam, 0, out=beam)
-            if m != 1:
-                np.log(beam, out=beam)
-                beam *= np.float32(m)
-                np.exp(beam, out=beam)
+            _power(beam, m)
             np.multiply(inv, inv, out=d2)
             beam *= d2  # beam / d^2
             cos_inc = na_ @ b_inc
@@ -146,9 +168,7 @@ def _light(leds: LedRing, points, normals, shininess: float | None) -> tuple[np.
             cos_h /= h2
             np.maximum(cos_h, 0, out=cos_h)
             np.copyto(cos_h, 0, where=cos_inc <= 0)  # the LED lights the wall from this side only
-            np.log(cos_h, out=cos_h)
-            cos_h *= np.float32(shininess)
-            np.exp(cos_h, out=cos_h)
+            _power(cos_h, shininess)
             cos_h *= beam
             spec[i0 : i0 + c] = cos_h @ weights
     return irr.reshape(shape), (spec.reshape(shape) if spec is not None else None)
