@@ -1,0 +1,369 @@
+"""Sliding-window sparse bundle adjustment with a local straight-cylinder prior (fisheye paper III-C).
+
+Minimises, over camera poses T_wc, points X and (optionally) one cylinder of known radius r,
+
+    eps = sum_obs huber_px(|u' - u|) + tau * sum_points huber_m(d_i),                  (eq. 2, 3, 6)
+
+where u' is the fisheye projection of X into its camera (pixels) and d_i = sqrt(X~^2 + Y~^2) - r is
+the signed distance of point i from the cylinder wall in the paper's 4-DOF parameterisation relative
+to the window's first ("reference") pose (eq. 4-5, `pipemap.geometry.cylinder`). Huber costs are
+minimised by iteratively re-weighted Levenberg-Marquardt with analytic Jacobians and the Schur
+complement on the points (`pipemap.backend.schur`). Outliers: after each of `outlier_passes` stages of
+LM, observations whose signed Huber-weighted errors sqrt(w) (u - u') lie more than
+max(mad_k * 1.4826 MAD, huber_px) from their median are set aside (and may come back at a later pass).
+
+Gauge: the poses in `fixed_poses` (default the first) are held. With the cylinder (tau > 0) its known
+radius fixes the scale, so one fixed pose is a complete gauge. With tau = 0 the scale is free: hold a
+second pose, or pass `fixed_distance=(i, j)` to keep |t_j - t_i| at its initial value (a stiff prior,
+1 px^2 per `1 / distance_weight` metres); otherwise LM's damping merely keeps the scale where it started.
+
+The cylinder's reference frame is the reference pose's value at the start of the solve. Under the
+default gauge that pose is fixed, which is exactly the paper's parameterisation; if it is free, the
+parameters stay relative to its initial value (the same family of cylinders, so the same optimum).
+
+Pose updates are right perturbations (rho, phi) in camera axes, see `pipemap.geometry.se3`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from pipemap.backend.robust import huber_cost, huber_weights, mad_inliers
+from pipemap.backend.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
+from pipemap.camera.base import CameraModel
+from pipemap.geometry.cylinder import Cylinder, CylinderFit, distance_jacobians, local_distance
+from pipemap.geometry.se3 import as_rt, retract, to_matrix, world_to_camera
+from pipemap.geometry.rotations import skew
+
+_FTOL = 1e-6  # the final stage ends when an iteration lowers the cost by less than this fraction
+_STAGE_FTOL = 1e-3  # ... and a stage before an outlier pass at this fraction
+
+
+def _single_threaded_blas():
+    """Multi-threaded OpenBLAS stalls for up to 0.5 s per call on a loaded 2-core machine, and the
+    reduced system (~600 unknowns) gains nothing from threads: hold BLAS to one thread while
+    solving."""
+    return threadpool_limits(1, user_api="blas")
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Feature observations: point `point[k]` seen by keyframe `camera[k]` at pixel `pixels[k]`."""
+
+    camera: np.ndarray  # (K,) int
+    point: np.ndarray  # (K,) int
+    pixels: np.ndarray  # (K, 2)
+
+    def __post_init__(self):
+        cam = np.asarray(self.camera).astype(np.int64).reshape(-1)
+        pt = np.asarray(self.point).astype(np.int64).reshape(-1)
+        uv = np.asarray(self.pixels, float)
+        if uv.shape != (len(cam), 2) or pt.shape != cam.shape:
+            raise ValueError(f"observations disagree: camera {cam.shape}, point {pt.shape}, pixels {uv.shape}")
+        object.__setattr__(self, "camera", cam)
+        object.__setattr__(self, "point", pt)
+        object.__setattr__(self, "pixels", uv)
+
+    def __len__(self) -> int:
+        return len(self.camera)
+
+
+@dataclass
+class BundleState:
+    """The unknowns: poses T_wc = (R, t), points, and the cylinder's local parameters (or None)."""
+
+    R: np.ndarray  # (N, 3, 3)
+    t: np.ndarray  # (N, 3)
+    points: np.ndarray  # (M, 3)
+    cylinder: np.ndarray | None  # (4,) (gamma, beta, t_X, t_Y) relative to the frozen reference
+
+    def retract(self, pose_delta: np.ndarray, point_delta: np.ndarray, cylinder_delta=None) -> "BundleState":
+        R, t = retract(self.R, self.t, pose_delta)
+        cyl = None if self.cylinder is None else self.cylinder + (0.0 if cylinder_delta is None else cylinder_delta)
+        return BundleState(R, t, self.points + point_delta, cyl)
+
+
+@dataclass
+class Linearisation:
+    """Residuals and analytic Jacobians at one state (all observations, all points)."""
+
+    reproj: np.ndarray  # (K, 2) u' - u, pixels
+    J_pose: np.ndarray  # (K, 2, 6) d u' / d (rho, phi) of the observing camera
+    J_point: np.ndarray  # (K, 2, 3) d u' / d X
+    dist: np.ndarray | None  # (M,) signed distance to the cylinder wall, metres
+    Jd_point: np.ndarray | None  # (M, 3)
+    Jd_cyl: np.ndarray | None  # (M, 4)
+
+
+@dataclass
+class BundleResult:
+    poses: np.ndarray  # (N, 4, 4) T_wc
+    points: np.ndarray  # (M, 3)
+    cylinder: Cylinder | None  # in world coordinates
+    cylinder_params: np.ndarray | None  # (gamma, beta, t_X, t_Y) relative to the final reference pose
+    inliers: np.ndarray  # (K,) bool per observation
+    point_inliers: np.ndarray  # (M,) bool: seen in at least two inlier observations
+    cost_history: list[float]  # eps at the start and after every iteration (the inlier set changes between stages)
+    iterations: int
+    time_s: float
+    rms_px: float  # RMS reprojection error of the inliers
+    cylinder_rms_m: float  # RMS distance of the inlier points to the cylinder (nan without one)
+    converged: bool
+    outlier_counts: list[int] = field(default_factory=list)  # outliers after each MAD pass
+
+
+class BundleProblem:
+    """One window of sparse bundle adjustment; `solve()` runs it.
+
+    poses: (N, 4, 4) T_wc or an (R, t) pair; points: (M, 3) world; observations: `Observations` or a
+    (camera, point, pixels) triple. cylinder: a `Cylinder`, a `CylinderFit` or None; it is parameterised
+    relative to pose `cylinder_reference`; `cylinder_points` (M,) bool restricts the prior to some points.
+    """
+
+    def __init__(self, camera: CameraModel, poses, points, observations, *, fixed_poses=(0,),
+                 cylinder: Cylinder | CylinderFit | None = None, cylinder_reference: int = 0,
+                 cylinder_points: np.ndarray | None = None, tau: float = 2.5e5, huber_px: float = 1.0,
+                 huber_m: float = 0.005, mad_k: float = 3.0, outlier_passes: int = 3, max_iterations: int = 20,
+                 fixed_distance: tuple[int, int] | None = None, distance_weight: float = 1e6):
+        self.camera = camera
+        R, t = as_rt(poses)
+        X = np.array(points, dtype=float)
+        if R.ndim != 3 or X.ndim != 2 or X.shape[1] != 3:
+            raise ValueError(f"expected poses (N, 4, 4) and points (M, 3), got {R.shape[:-2]} poses, points {X.shape}")
+        obs = observations if isinstance(observations, Observations) else Observations(*observations)
+        N, M = len(R), len(X)
+        if len(obs) and (obs.camera.min() < 0 or obs.camera.max() >= N or obs.point.min() < 0 or obs.point.max() >= M):
+            raise ValueError("observation indices out of range")
+        self.obs, self.N, self.M = obs, N, M
+        self.fixed = np.zeros(N, bool)
+        self.fixed[list(fixed_poses)] = True
+        self.free_index = np.full(N, -1)
+        self.free_index[~self.fixed] = np.arange(int((~self.fixed).sum()))
+        self.tau, self.huber_px, self.huber_m = float(tau), float(huber_px), float(huber_m)
+        self.mad_k, self.outlier_passes, self.max_iterations = float(mad_k), int(outlier_passes), int(max_iterations)
+        self.fixed_distance = None if fixed_distance is None else (int(fixed_distance[0]), int(fixed_distance[1]))
+        self.distance_weight = float(distance_weight)
+        if self.fixed_distance is not None:
+            i, j = self.fixed_distance
+            self.distance0 = float(np.linalg.norm(t[j] - t[i]))
+        self.ref = int(cylinder_reference)
+        self.ref_R, self.ref_t = R[self.ref].copy(), t[self.ref].copy()
+        if isinstance(cylinder, CylinderFit):
+            cylinder = cylinder.cylinder
+        self.radius = None if cylinder is None else cylinder.radius
+        cyl0 = None if cylinder is None else cylinder.local_params(self.ref_R, self.ref_t)
+        self.cylinder_points = np.ones(M, bool) if cylinder_points is None else np.asarray(cylinder_points, bool)
+        self.initial = BundleState(R, t, X, cyl0)
+
+    @classmethod
+    def from_settings(cls, camera, poses, points, observations, settings, **kwargs) -> "BundleProblem":
+        """Take tau, the Huber thresholds, mad_k, outlier_passes and max_iterations from `Settings.bundle`."""
+        b = getattr(settings, "bundle", settings)
+        opts = dict(tau=b.tau, huber_px=b.huber_px, huber_m=b.huber_m, mad_k=b.mad_k,
+                    outlier_passes=b.outlier_passes, max_iterations=b.max_iterations)
+        opts.update(kwargs)
+        return cls(camera, poses, points, observations, **opts)
+
+    @property
+    def uses_cylinder(self) -> bool:
+        return self.initial.cylinder is not None and self.tau > 0
+
+    # -- residuals and Jacobians ----------------------------------------------------------------
+
+    def linearise(self, state: BundleState, jacobians: bool = True) -> Linearisation:
+        cam, pt = self.obs.camera, self.obs.point
+        Rc = state.R[cam]
+        Xc = world_to_camera(Rc, state.t[cam], state.points[pt])
+        if not jacobians:
+            uv = self.camera.project(Xc)[0]
+            dist = None
+            if self.uses_cylinder:
+                Xm = world_to_camera(self.ref_R, self.ref_t, state.points)
+                dist = local_distance(Xm, state.cylinder, self.radius, jacobians=False)
+            return Linearisation(uv - self.obs.pixels, None, None, dist, None, None)
+        uv, Jproj, _ = self.camera.project_jacobian(Xc)
+        J_pose = np.empty((len(cam), 2, 6))
+        J_pose[:, :, :3] = -Jproj
+        J_pose[:, :, 3:] = Jproj @ skew(Xc)
+        J_point = Jproj @ np.swapaxes(Rc, 1, 2)
+        dist = Jd_point = Jd_cyl = None
+        if self.uses_cylinder:
+            dist, Jd_point, Jd_cyl, _ = distance_jacobians(state.points, state.cylinder, self.ref_R, self.ref_t,
+                                                           self.radius)
+        return Linearisation(uv - self.obs.pixels, J_pose, J_point, dist, Jd_point, Jd_cyl)
+
+    def _active_points(self, inliers: np.ndarray) -> np.ndarray:
+        return np.bincount(self.obs.point[inliers], minlength=self.M) > 0
+
+    def cost(self, state: BundleState, inliers: np.ndarray, lin: Linearisation | None = None) -> float:
+        """eps = sum huber_px(|u' - u|) + tau sum huber_m(|d|) over inlier observations and active points."""
+        lin = lin or self.linearise(state, jacobians=False)
+        c = float(huber_cost(np.linalg.norm(lin.reproj[inliers], axis=1), self.huber_px).sum())
+        if lin.dist is not None:
+            on = self._active_points(inliers) & self.cylinder_points
+            c += self.tau * float(huber_cost(np.abs(lin.dist[on]), self.huber_m).sum())
+        if self.fixed_distance is not None:
+            c += self._distance_prior(state)[0] ** 2
+        return c
+
+    def _distance_prior(self, state: BundleState):
+        """Residual s (|t_j - t_i| - d0) and its derivative with respect to (rho_i, rho_j)."""
+        i, j = self.fixed_distance
+        v = state.t[j] - state.t[i]
+        L = np.linalg.norm(v)
+        u = v / L
+        s = self.distance_weight
+        return s * (L - self.distance0), -s * (u @ state.R[i]), s * (u @ state.R[j])
+
+    def stage(self, inliers: np.ndarray) -> "_Stage":
+        """The sparsity structure of the inlier observations (reused while they do not change)."""
+        return _Stage(self, inliers)
+
+    def normal_equations(self, state: BundleState, inliers: np.ndarray,
+                         stage: "_Stage | None" = None) -> NormalEquations:
+        """IRLS-weighted Gauss-Newton blocks at `state` over the inlier observations."""
+        st = stage if stage is not None else self.stage(inliers)
+        lin = self.linearise(state)
+        e, Jc, Jp = lin.reproj[inliers], lin.J_pose[inliers], lin.J_point[inliers]
+        w = huber_weights(np.linalg.norm(e, axis=1), self.huber_px)
+        wJp = w[:, None, None] * Jp
+        V = st.to_point(np.swapaxes(wJp, 1, 2) @ Jp)
+        gp = st.to_point(np.einsum("kai,ka->ki", wJp, e))
+        on = st.on
+        wJc = w[on, None, None] * Jc[on]
+        U = st.schur.to_cam(np.swapaxes(wJc, 1, 2) @ Jc[on])
+        gc = st.schur.to_cam(np.einsum("kai,ka->ki", wJc, e[on]))
+        W = np.swapaxes(wJc, 1, 2) @ Jp[on]
+        C = st.schur.C
+        q = 4 if self.uses_cylinder else 0
+        Ux, gx, Wx = np.zeros((q, q)), np.zeros(q), np.zeros((self.M, q, 3))
+        active = st.active
+        if q:
+            on_cyl = active & self.cylinder_points
+            wd = np.where(on_cyl, self.tau * huber_weights(np.abs(lin.dist), self.huber_m), 0.0)
+            V += np.einsum("m,mi,mj->mij", wd, lin.Jd_point, lin.Jd_point)
+            gp += (wd * lin.dist)[:, None] * lin.Jd_point
+            Ux = np.einsum("m,mi,mj->ij", wd, lin.Jd_cyl, lin.Jd_cyl)
+            gx = lin.Jd_cyl.T @ (wd * lin.dist)
+            Wx = np.einsum("m,mi,mj->mij", wd, lin.Jd_cyl, lin.Jd_point)
+        # Points without inlier observations are frozen: an identity block with no gradient.
+        V[~active] = np.eye(3)
+        gp[~active] = 0.0
+        eq = NormalEquations(U, gc, V, gp, W, st.schur.obs_cam, st.schur.obs_pt, Ux, gx, Wx)
+        if self.fixed_distance is not None:
+            r, Ji, Jj = self._distance_prior(state)
+            J = np.zeros(6 * C + q)
+            for k, Jk in ((self.fixed_distance[0], Ji), (self.fixed_distance[1], Jj)):
+                if self.free_index[k] >= 0:
+                    J[6 * self.free_index[k]: 6 * self.free_index[k] + 3] += Jk
+            eq.H_extra, eq.g_extra = np.outer(J, J), J * r
+        return eq
+
+    # -- the solver ---------------------------------------------------------------------------
+
+    def _step(self, state: BundleState, delta) -> BundleState:
+        dc, dx, dp = delta
+        pose_delta = np.zeros((self.N, 6))
+        pose_delta[~self.fixed] = dc
+        return state.retract(pose_delta, dp, dx if len(dx) else None)
+
+    def _reject(self, state: BundleState, inliers: np.ndarray) -> np.ndarray:
+        e = self.linearise(state, jacobians=False).reproj
+        a = np.linalg.norm(e, axis=1)
+        weighted = np.sqrt(huber_weights(a, self.huber_px))[:, None] * e
+        return mad_inliers(weighted, self.mad_k, reference=inliers, floor=self.huber_px) & np.all(np.isfinite(e), 1)
+
+    def solve(self) -> BundleResult:
+        """Levenberg-Marquardt in stages separated by MAD outlier passes; see the module docstring."""
+        with _single_threaded_blas():
+            return self._solve()
+
+    def _solve(self) -> BundleResult:
+        t0 = time.perf_counter()
+        state = self.initial
+        inliers = np.all(np.isfinite(self.obs.pixels), axis=1)
+        cost = self.cost(state, inliers)
+        history, counts = [cost], []
+        lam, iterations, passes, settled = 1e-4, 0, 0, False
+        while True:
+            last = settled or passes >= self.outlier_passes
+            # Early stages only need to get close enough to tell outliers apart.
+            tol = _FTOL if last else _STAGE_FTOL
+            budget = self.max_iterations - iterations - (0 if last else self.outlier_passes - passes)
+            stage = self.stage(inliers)
+            converged = False
+            for _ in range(max(budget, 1)):
+                if iterations >= self.max_iterations:
+                    break
+                eq = self.normal_equations(state, inliers, stage)
+                accepted = False
+                while lam < 1e12:
+                    delta = solve_damped(eq, stage.schur, lam)
+                    if delta is not None:
+                        trial = self._step(state, delta)
+                        c = self.cost(trial, inliers)
+                        if np.isfinite(c) and c < cost:
+                            accepted = True
+                            break
+                    lam *= 10.0
+                iterations += 1
+                if not accepted:  # no descent direction left: a minimum
+                    converged = True
+                    history.append(cost)
+                    break
+                small = cost - c <= tol * cost
+                state, cost, lam = trial, c, max(lam / 3.0, 1e-12)
+                history.append(cost)
+                if small:
+                    converged = True
+                    break
+            if last:
+                break
+            new = self._reject(state, inliers)
+            passes += 1
+            counts.append(int((~new).sum()))
+            settled = bool(np.array_equal(new, inliers))
+            inliers = new
+            cost = self.cost(state, inliers)
+            lam = max(lam, 1e-4)
+        return self._result(state, inliers, history, iterations, time.perf_counter() - t0, converged, counts)
+
+    def _result(self, state, inliers, history, iterations, seconds, converged, counts) -> BundleResult:
+        lin = self.linearise(state, jacobians=False)
+        rms = float(np.sqrt(np.mean(np.sum(lin.reproj[inliers] ** 2, axis=1)))) if inliers.any() else float("nan")
+        point_in = np.bincount(self.obs.point[inliers], minlength=self.M) >= 2
+        cyl = params = None
+        cyl_rms = float("nan")
+        if state.cylinder is not None:
+            cyl = Cylinder.from_local(state.cylinder, self.ref_R, self.ref_t, self.radius)
+            params = cyl.local_params(state.R[self.ref], state.t[self.ref])
+            d = cyl.distance(state.points[point_in & self.cylinder_points])
+            cyl_rms = float(np.sqrt(np.mean(d**2))) if d.size else float("nan")
+        return BundleResult(to_matrix(state.R, state.t), state.points.copy(), cyl, params, inliers, point_in,
+                            history, iterations, seconds, rms, cyl_rms, converged, counts)
+
+
+class _Stage:
+    """Index structure of one inlier set: which observations, their free cameras, the summing operators."""
+
+    def __init__(self, problem: BundleProblem, inliers: np.ndarray):
+        self.cam, self.pt = problem.obs.camera[inliers], problem.obs.point[inliers]
+        f = problem.free_index[self.cam]
+        self.on = f >= 0
+        self.active = np.bincount(self.pt, minlength=problem.M) > 0
+        self.to_point = BlockSummer(self.pt, problem.M)
+        self.schur = SchurStructure(f[self.on], self.pt[self.on], int((~problem.fixed).sum()), problem.M)
+
+
+def solve_window(camera: CameraModel, poses, points, observations, settings=None, **kwargs) -> BundleResult:
+    """Convenience: build a `BundleProblem` (from `Settings.bundle` when given) and solve it."""
+    if settings is not None:
+        return BundleProblem.from_settings(camera, poses, points, observations, settings, **kwargs).solve()
+    return BundleProblem(camera, poses, points, observations, **kwargs).solve()
+
+
+__all__ = ["Observations", "BundleState", "BundleProblem", "BundleResult", "Linearisation", "solve_window"]

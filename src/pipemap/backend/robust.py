@@ -1,0 +1,44 @@
+"""Huber weighting and MAD outlier rejection (fisheye paper III-C).
+
+Iteratively re-weighted least squares: a residual of size a (a norm for a 2D reprojection error, an
+absolute value for a distance) costs huber_cost(a, k) = a^2 below the threshold k and 2 k a - k^2 above,
+and is weighted by huber_weights(a, k) = min(1, k / a) in the next Gauss-Newton step, whose weighted
+squared residual w a^2 equals the Huber cost to first order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MAD_TO_SIGMA = 1.4826  # sigma of a normal distribution / its median absolute deviation
+
+
+def huber_weights(a: np.ndarray, k: float) -> np.ndarray:
+    """IRLS weights min(1, k / a) of non-negative residual sizes a."""
+    a = np.asarray(a, float)
+    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300))
+
+
+def huber_cost(a: np.ndarray, k: float) -> np.ndarray:
+    """Huber cost of non-negative residual sizes a: a^2 inside k, 2 k a - k^2 outside (continuous, C1)."""
+    a = np.asarray(a, float)
+    return np.where(a <= k, a * a, 2.0 * k * a - k * k)
+
+
+def mad_inliers(errors: np.ndarray, k: float, reference: np.ndarray | None = None, floor: float = 0.0) -> np.ndarray:
+    """Which rows of signed errors (n,) or (n, d) lie within k robust sigmas of the median.
+
+    The median and the MAD are taken over all components of the rows selected by `reference`
+    (default: all rows), so a pass can re-admit rows rejected earlier. A row is an inlier when every
+    component is within max(k * 1.4826 * MAD, floor) of the median; the floor keeps exact data from
+    being rejected on round-off.
+    """
+    e = np.asarray(errors, float)
+    e2 = e.reshape(len(e), -1)
+    ref = e2 if reference is None else e2[np.asarray(reference, bool)]
+    if ref.size == 0:
+        return np.ones(len(e), bool)
+    med = np.median(ref)
+    mad = np.median(np.abs(ref - med))
+    bound = max(k * MAD_TO_SIGMA * mad, floor)
+    return np.all(np.abs(e2 - med) <= bound, axis=1)
