@@ -71,6 +71,10 @@ class LedRing:
         the pipe: sum over LEDs of power * beam * max(cos incidence, 0) / d^2, d >= 1 mm."""
         return _light(self, points_cam, normals_cam, None)[0]
 
+    def light(self, points_cam: np.ndarray, normals_cam: np.ndarray, shininess: float | None = 40.0):
+        """Irradiance and (when `shininess` is given) the specular highlight, in one pass."""
+        return _light(self, points_cam, normals_cam, None if shininess is None else float(shininess))
+
     def specular(self, points_cam: np.ndarray, normals_cam: np.ndarray, shininess: float = 40.0) -> np.ndarray:
         """Blinn-Phong highlight (...) float32 seen from the camera centre: sum over LEDs of
         power * beam / d^2 * max(n.h, 0)^shininess on surfaces the LED lights."""
@@ -185,7 +189,7 @@ def shade(
 ) -> np.ndarray:
     """Radiance float32: albedo * (LED irradiance + ambient) + specular_strength * highlight
     (LedRing.specular with `shininess`), at points (..., 3) with normals into the pipe."""
-    irr, spec = _light(leds, points_cam, normals_cam, float(shininess) if specular_strength else None)
+    irr, spec = leds.light(points_cam, normals_cam, float(shininess) if specular_strength else None)
     rad = np.asarray(albedo, np.float32) * (irr + np.float32(ambient))
     if spec is not None:
         rad += np.float32(specular_strength) * spec

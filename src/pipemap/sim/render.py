@@ -36,6 +36,7 @@ class Appearance:
     led_tilt_deg: float = 0.0
     led_beam_half_angle_deg: float = 60.0
     specular_strength: float = 0.15
+    shininess: float = 40.0  # Blinn-Phong exponent of the wall's highlight
     ambient: float = 0.0
     vignetting: float = 0.3
     full_well: float = 6000.0
@@ -90,6 +91,37 @@ def camera_pixels(camera: CameraModel) -> Pixels:
     return Pixels(valid, index, b.copy(), np.ascontiguousarray(b.T), theta, angle.ravel()[index].copy())
 
 
+@dataclass(frozen=True)
+class LightingStencil:
+    """LED lighting varies slowly over a smooth wall, so it is computed exactly on every second pixel
+    in each direction (the anchors) and interpolated bilinearly between them, except where a pixel's
+    four anchors do not lie on the same smooth piece of wall (pipe edges, tee openings, end caps)."""
+
+    anchor: np.ndarray  # (N,) bool over the valid pixels
+    complete: np.ndarray  # (N,) bool: all four anchors are valid pixels
+    corners: np.ndarray  # (4, N) valid-pixel indices of the surrounding anchors (own index if none)
+    weights: np.ndarray  # (4, N) float32 bilinear weights
+
+
+def lighting_stencil(pixels: Pixels) -> LightingStencil:
+    H, W = pixels.valid.shape
+    n = len(pixels.index)
+    lookup = np.full(H * W, -1, np.int64)
+    lookup[pixels.index] = np.arange(n)
+    r, c = np.divmod(pixels.index, W)
+    fr, fc = (r % 2) * 0.5, (c % 2) * 0.5
+    r0, c0 = r - r % 2, c - c % 2
+    r1, c1 = r0 + 2 * (r % 2), c0 + 2 * (c % 2)
+    rows = np.stack([r0, r0, r1, r1])
+    cols = np.stack([c0, c1, c0, c1])
+    inside = (rows < H) & (cols < W)
+    corners = np.where(inside, lookup[np.minimum(rows, H - 1) * W + np.minimum(cols, W - 1)], -1)
+    complete = (corners >= 0).all(0)
+    corners = np.where(corners >= 0, corners, np.arange(n)).astype(np.int32)
+    weights = np.stack([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc]).astype(np.float32)
+    return LightingStencil((r % 2 == 0) & (c % 2 == 0), complete, corners, weights)
+
+
 class Renderer:
     """Renders frames of `scene` through `camera`; exposure is fixed on the first frame rendered
     (or by `appearance.exposure`), as the robots ran with a fixed exposure."""
@@ -99,6 +131,7 @@ class Renderer:
         self.camera = camera
         self.appearance = appearance
         self.pixels = camera_pixels(camera)
+        self.stencil = lighting_stencil(self.pixels)
         self.caster = RayCaster(scene, dtype=np.float32)
         self.texture = WallTexture(int(seed), appearance.mm_per_px, appearance.texture_style)
         self.leds = appearance.leds()
@@ -163,12 +196,47 @@ class Renderer:
             albedo[idx] = self.surfaces[j].sample(h[idx] + np.float32(pipe.extend_start), s[idx], footprint[idx])
         if hits.cap.any():
             albedo[hits.cap] *= np.float32(ap.cap_albedo)
-        lit = np.flatnonzero(hits.hit)
+        irr, spec = self._lighting(P, N, hits)
+        lit = hits.hit
         rad = np.zeros(self.camera.height * self.camera.width, np.float32)
-        Pl = np.ascontiguousarray(P[:, lit].T)
-        Nl = np.ascontiguousarray(N[:, lit].T)
-        rad[self.pixels.index[lit]] = shade(albedo[lit], Pl, Nl, self.leds, ap.specular_strength, ap.ambient)
+        value = albedo[lit] * (irr[lit] + np.float32(ap.ambient))
+        if spec is not None:
+            value += np.float32(ap.specular_strength) * spec[lit]
+        rad[self.pixels.index[lit]] = value
         return rad.reshape(self.camera.height, self.camera.width)
+
+    def _lighting(self, P: np.ndarray, N: np.ndarray, hits):
+        """Irradiance and specular (N,) over the valid pixels: exact on anchors and on pixels whose
+        anchors straddle an edge, interpolated elsewhere."""
+        st, lit = self.stencil, hits.hit
+        # one key per smooth piece of wall: the pipe, and whether it is the end cap
+        key = np.where(lit, hits.pipe * 2 + hits.cap, -1)
+        depth = hits.t.astype(np.float32, copy=False)
+        smooth = st.complete & lit & ~st.anchor
+        dmin = dmax = depth
+        for ci in st.corners:
+            smooth &= key[ci] == key
+            dc = depth[ci]
+            dmin, dmax = np.minimum(dmin, dc), np.maximum(dmax, dc)
+        smooth &= dmax < np.float32(1.03) * dmin
+        exact = np.flatnonzero(lit & ~smooth)
+        between = np.flatnonzero(smooth)
+        shininess = self.appearance.shininess if self.appearance.specular_strength else None
+        e_irr, e_spec = self.leds.light(np.ascontiguousarray(P[:, exact].T), np.ascontiguousarray(N[:, exact].T),
+                                        shininess)
+        out = []
+        for exact_values in (e_irr, e_spec):
+            if exact_values is None:
+                out.append(None)
+                continue
+            v = np.zeros(len(lit), np.float32)
+            v[exact] = exact_values
+            acc = np.zeros(len(between), np.float32)
+            for ci, wi in zip(st.corners, st.weights):
+                acc += wi[between] * v[ci[between]]
+            v[between] = acc
+            out.append(v)
+        return out[0], out[1]
 
     # -- images ---------------------------------------------------------------------------------
 
