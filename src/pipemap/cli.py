@@ -108,9 +108,7 @@ def settings(
     """Print the effective settings (the papers' values unless overridden) as YAML."""
     import yaml
 
-    from pipemap.config import load_settings
-
-    s = load_settings(config, set_)
+    s = _load_settings(config, set_)
     typer.echo(yaml.safe_dump(s.to_dict(), sort_keys=False), nl=False)
 
 
@@ -232,6 +230,46 @@ def gain_mask(
         f"gain mask from {len(paths) - len(skipped)} images -> {out} "
         f"(relative gain {rel.min():.3f}..1.000, mean {rel.mean():.3f})"
     )
+
+
+def _load_settings(config: Optional[Path], set_: List[str]):
+    from pipemap.config import load_settings
+
+    return load_settings(config, set_)
+
+
+CONFIG_OPTION = typer.Option(None, "--config", help="YAML settings file (defaults: the papers' values).")
+SET_OPTION = typer.Option([], "--set", help="Override one setting: section.key=value (repeatable).")
+
+
+@app.command()
+@friendly
+def track(
+    dataset: Path = typer.Argument(..., help="Dataset folder or its dataset.yaml."),
+    out: Path = typer.Option(..., "--out", help="Result folder to create (must not exist or be empty)."),
+    config: Optional[Path] = CONFIG_OPTION,
+    set_: List[str] = SET_OPTION,
+) -> None:
+    """Run the fisheye front end alone: keyframes, feature tracks, relative poses (unit steps).
+
+    Writes frames.csv, trajectory.tum (rotations exact, one unit of translation per keyframe
+    step), tracks.csv and run.json.
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from pipemap.frontend import run_tracking
+
+    settings = _load_settings(config, set_)
+    with Progress(TextColumn("tracking"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[kf]} keyframes"),
+                  TimeRemainingColumn(), console=err_console, transient=True) as bar:
+        task = bar.add_task("frames", total=None, kf=0)
+
+        def progress(done: int, total: int, keyframes: int) -> None:
+            bar.update(task, completed=done, total=total, kf=keyframes)
+
+        result = run_tracking(dataset, out, settings, progress=progress)
+    console.print(f"{result.image_count} frames, {len(result.keyframes)} keyframes, "
+                  f"{result.frames_per_second:.1f} frames/s -> {out}")
 
 
 @app.command()

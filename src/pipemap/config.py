@@ -35,7 +35,26 @@ class FrontendSettings(_Section):
     epipolar_threshold: float = Field(0.01, gt=0, description="|eta_j^T E eta_i| bound of the guided ZNCC search")
     zncc_min: float = Field(0.8, gt=-1, le=1, description="minimum ZNCC score of a guided match")
     keyframe_min_flow_px: float = Field(10.0, ge=0, description="new keyframe when median sparse flow exceeds this")
-    keyframe_min_tracked: float = Field(0.5, ge=0, le=1, description="... or tracked fraction falls below this")
+    keyframe_min_tracked: float = Field(
+        0.5, ge=0, le=1, description="... or inlier matches fall below this fraction of the most any frame had since the keyframe")
+    # What the paper leaves open: measured on renders at 640x480, also used at 1280x960.
+    min_distance_px: int = Field(3, ge=1, description="non-maximum suppression radius of Harris corners")
+    harris_quality: float = Field(0.001, ge=0, lt=1, description="corners weaker than this x the region's strongest are dropped")
+    min_similarity: float = Field(0.5, ge=-1, le=1, description="smallest cosine similarity of a descriptor match")
+    max_flow_px: float = Field(80.0, gt=0, description="descriptor match candidates lie within this many pixels")
+    ransac_threshold_px: float = Field(0.7, gt=0, description="angular inlier threshold is at least this many pixels at the centre")
+    ransac_max_trials: int = Field(500, gt=0)
+    track_threshold_factor: float = Field(2.0, gt=0, description="a match continues its track within this x the RANSAC threshold of the refined pose")
+    min_inliers: int = Field(15, gt=5, description="fewer pose inliers means the frame is not tracked")
+    zncc_patch: int = Field(11, gt=2, description="side of the raw-image ZNCC template (px)")
+    guided_search_px: int = Field(8, gt=0, description="half-size of the guided ZNCC window around the predicted position")
+    guided_neighbours: int = Field(5, gt=0, description="matched neighbours whose median flow predicts a feature's position")
+    refine_matches_px: int = Field(2, ge=0, description="descriptor matches are re-located by ZNCC within this many px (0: off)")
+    duplicate_px: float = Field(2.0, ge=0, description="an unmatched corner this close to a guided match is dropped")
+    max_lost_frames: int = Field(5, gt=0, description="after this many untracked frames, start again from a new keyframe")
+    flatten_lighting: bool = Field(True, description="detect, describe and correlate on log(I) minus its local mean")
+    lighting_sigma_px: float = Field(4.0, gt=0, description="scale of the local mean removed with the lighting (px at 640 wide)")
+    dark_level: float = Field(12.0, ge=0, description="no features where the local mean grey level is below this")
 
 
 class ClassificationSettings(_Section):

@@ -196,3 +196,18 @@ class _PngWriter:
         if exc_type is None and self.error is not None:
             raise self.error
         return False
+
+
+def wall_caster(preset: str, width: int, height: int, frames: int, seed: int, spacing_m: float | None = None):
+    """The exact wall of a preset's scene (sagging, misaligned pieces) as a function
+    (origin (3,), unit world directions (N, 3)) -> (points (N, 3), hit (N,)), for judging results."""
+    from pipemap.sim.raycast import RayCaster
+
+    caster = RayCaster(plan(preset, width=width, height=height, frames=frames, seed=seed, spacing_m=spacing_m).setup.scene, dtype=np.float64)
+
+    def cast(origin, directions):
+        hits = caster.cast_world(origin, directions)
+        t = np.where(hits.hit, hits.t, 0.0)
+        return origin + t[:, None] * directions, hits.hit
+
+    return cast

@@ -1,0 +1,301 @@
+"""The streaming fisheye front end: frames in, keyframes with tracks and relative poses out.
+
+Every frame is matched against the last keyframe (Harris corners, template descriptors,
+five-point RANSAC on bearings). Only when a frame becomes a keyframe does the expensive part
+run: descriptor matches are re-located by ZNCC, unmatched keyframe features are searched by
+epipolar-guided ZNCC, the pose is refined on all matches, and track ids are carried over.
+When a frame cannot be matched (glare, a blank wall), the last frame that could is made the
+keyframe and the frame is tried again against it.
+
+All image work runs on the lighting-flattened image (harris.flatten_lighting), still in the
+fisheye geometry: the paper's "ZNCC in the original fisheye imagery" means not unwarped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pipemap.camera import CameraModel
+from pipemap.config import FrontendSettings
+from pipemap.dataset import Frame
+from pipemap.frontend.descriptors import describe, match_descriptors, smooth_for_templates
+from pipemap.frontend.guided import guided_zncc, predict_positions
+from pipemap.frontend.harris import bearing_map, detect_corners, flatten_lighting, valid_mask
+from pipemap.frontend.keyframes import needs_keyframe
+from pipemap.frontend.relpose import (
+    RelativePose,
+    essential_from_pose,
+    estimate_relative_pose,
+    refine_pose,
+    sampson_angle,
+    triangulate_depths,
+)
+from pipemap.frontend.tracks import Keyframe, TrackIds
+
+
+@dataclass
+class _Features:
+    index: int
+    timestamp: float
+    image: np.ndarray
+    smoothed: np.ndarray
+    keypoints: np.ndarray
+    bearings: np.ndarray
+    descriptors: np.ndarray
+
+
+@dataclass
+class _Match:
+    """A frame matched against the current keyframe (descriptor inliers only)."""
+
+    frame: _Features
+    pose: RelativePose
+    kf_idx: np.ndarray
+    frame_idx: np.ndarray
+    median_flow: float
+    tracked_fraction: float
+
+
+def pixel_angle(camera: CameraModel) -> float:
+    """Angle (radians) subtended by one pixel at the principal point's neighbourhood of the image centre."""
+    c = np.array([[camera.width / 2.0, camera.height / 2.0], [camera.width / 2.0 + 1.0, camera.height / 2.0]])
+    b, _ = camera.unproject(c)
+    return float(np.arccos(np.clip(b[0] @ b[1], -1.0, 1.0)))
+
+
+class FeatureTracker:
+    """Feed frames in order with `process`; call `finish` at the end. Both return new keyframes."""
+
+    def __init__(self, camera: CameraModel, settings: FrontendSettings | None = None, seed: int = 0):
+        self.camera = camera
+        self.s = settings or FrontendSettings()
+        self.seed = seed
+        margin = max(self.s.template_window, self.s.zncc_patch) // 2 + 1
+        self.mask = valid_mask(camera, margin)
+        self.bearing_map, self.valid = bearing_map(camera)
+        self.threshold = max(np.radians(self.s.ransac_angle_deg), self.s.ransac_threshold_px * pixel_angle(camera))
+        self.ids = TrackIds()
+        self.keyframes: list[Keyframe] = []
+        self._kf_features: _Features | None = None
+        self._candidate: _Match | None = None
+        self._lost = 0
+        self._reference = 0
+
+    # -- per frame ------------------------------------------------------------------------
+
+    def extract(self, frame: Frame) -> _Features:
+        s = self.s
+        image = np.ascontiguousarray(frame.image, dtype=np.float32)
+        mask = self.mask
+        if s.flatten_lighting:
+            sigma = s.lighting_sigma_px * self.camera.width / 640.0
+            image, lit = flatten_lighting(image, sigma, s.dark_level)
+            mask = mask & lit
+        points, _ = detect_corners(image, mask, tuple(s.regions), s.corners_per_region, s.harris_k,
+                                   min_distance_px=self.s.min_distance_px, quality=self.s.harris_quality)
+        smoothed = smooth_for_templates(image, s.template_size, s.template_window)
+        desc, usable = describe(smoothed, points, s.template_size, s.template_window)
+        points, desc = points[usable], desc[usable]
+        bearings, _ = self.camera.unproject(points)
+        return _Features(frame.index, frame.timestamp, image, smoothed, points, bearings.reshape(-1, 3), desc)
+
+    def _match(self, kf: _Features, f: _Features) -> _Match | None:
+        s = self.s
+        ii, jj, _ = match_descriptors(kf.descriptors, f.descriptors, kf.keypoints, f.keypoints,
+                                      s.match_ratio, s.min_similarity, s.max_flow_px)
+        if len(ii) < s.min_inliers:
+            return None
+        rng = np.random.default_rng([self.seed, kf.index, f.index])
+        pose = estimate_relative_pose(kf.bearings[ii], f.bearings[jj], self.threshold, s.ransac_confidence, rng,
+                                      s.ransac_max_trials, min_inliers=s.min_inliers, refine=False)
+        if pose is None:
+            return None
+        ii, jj = ii[pose.inliers], jj[pose.inliers]
+        flow = float(np.median(np.linalg.norm(f.keypoints[jj] - kf.keypoints[ii], axis=1)))
+        # Harris corners recur only partly from frame to frame, and guided features are not corners
+        # at all, so "tracked" is measured against the most matches this keyframe has had.
+        self._reference = max(self._reference, len(ii))
+        return _Match(f, pose, ii, jj, flow, len(ii) / self._reference)
+
+    def process(self, frame: Frame) -> list[Keyframe]:
+        """Track one frame; returns the keyframes this frame completed (usually none or one)."""
+        features = self.extract(frame)
+        if self._kf_features is None:
+            if len(features.keypoints) < self.s.min_inliers:
+                return []
+            return [self._start(features)]
+        out: list[Keyframe] = []
+        match = self._match(self._kf_features, features)
+        if match is None and self._candidate is not None:
+            out.append(self._promote(self._candidate))
+            match = self._match(self._kf_features, features)
+        if match is None:
+            self._lost += 1
+            if self._lost > self.s.max_lost_frames and len(features.keypoints) >= self.s.min_inliers:
+                out.append(self._start(features))
+            return out
+        self._lost = 0
+        if needs_keyframe(match.median_flow, match.tracked_fraction, self.s.keyframe_min_flow_px, self.s.keyframe_min_tracked):
+            out.append(self._promote(match))
+        else:
+            self._candidate = match
+        return out
+
+    def finish(self) -> list[Keyframe]:
+        """Make the last tracked frame a keyframe, so that the keyframes reach the end of the sequence."""
+        return [self._promote(self._candidate)] if self._candidate is not None else []
+
+    # -- keyframes ------------------------------------------------------------------------
+
+    def _emit(self, f: _Features, keyframe: Keyframe) -> Keyframe:
+        self._kf_features = f
+        self._candidate = None
+        self._reference = 0
+        self.keyframes.append(keyframe)
+        return keyframe
+
+    def _start(self, f: _Features) -> Keyframe:
+        """A keyframe with no link to the previous one (the first, or after tracking was lost)."""
+        n = len(f.keypoints)
+        kf = Keyframe(len(self.keyframes), f.index, f.timestamp, f.keypoints, f.bearings, self.ids.new(n),
+                      np.zeros(n, bool), np.zeros(n, bool), np.eye(3), np.zeros(3), False)
+        return self._emit(f, kf)
+
+    def _promote(self, m: _Match) -> Keyframe:
+        s = self.s
+        kf, f = self._kf_features, m.frame
+        prev = self.keyframes[-1]
+        # The RANSAC pose bounds the epipolar regions well enough; one refinement at the end uses every match.
+        R, t, E = m.pose.R, m.pose.t, m.pose.E
+        matched_pts, matched_bear = f.keypoints[m.frame_idx], f.bearings[m.frame_idx]
+        if s.refine_matches_px > 0:
+            # Two independent corner detections disagree by ~0.5 px; correlating the keyframe's
+            # template around each match halves that (the guided matches are found the same way).
+            ok, pos, _ = guided_zncc(kf.image, f.image, kf.keypoints[m.kf_idx], kf.bearings[m.kf_idx], matched_pts, E,
+                                     self.bearing_map, self.valid, s.zncc_patch, s.refine_matches_px,
+                                     s.epipolar_threshold, s.zncc_min)
+            if ok.any():
+                matched_pts = np.where(ok[:, None], pos, matched_pts)
+                bear, _ = self.camera.unproject(pos[ok])
+                matched_bear = matched_bear.copy()
+                matched_bear[ok] = bear
+        # Guided ZNCC for the keyframe features the descriptors did not match.
+        unmatched = np.setdiff1d(np.arange(len(kf.keypoints)), m.kf_idx)
+        predicted = predict_positions(kf.keypoints[unmatched], kf.keypoints[m.kf_idx], matched_pts,
+                                      s.guided_neighbours)
+        found, pos, _ = guided_zncc(kf.image, f.image, kf.keypoints[unmatched], kf.bearings[unmatched], predicted, E,
+                                    self.bearing_map, self.valid, s.zncc_patch, s.guided_search_px,
+                                    s.epipolar_threshold, s.zncc_min)
+        g_kf, g_pos = unmatched[found], pos[found]
+        g_bear, g_ok = self.camera.unproject(g_pos)
+        g_bear = g_bear.reshape(-1, 3)
+        lam_i, lam_j = triangulate_depths(R, t, kf.bearings[g_kf], g_bear)
+        keep = g_ok.reshape(-1) & (lam_i > 0) & (lam_j > 0)
+        g_kf, g_pos, g_bear = g_kf[keep], g_pos[keep], g_bear[keep]
+        g_desc, usable = describe(f.smoothed, g_pos, s.template_size, s.template_window)
+        g_kf, g_pos, g_bear, g_desc = g_kf[usable], g_pos[usable], g_bear[usable], g_desc[usable]
+        # All matches together pin the pose down better than the descriptor matches alone.
+        all_i = np.concatenate([kf.bearings[m.kf_idx], kf.bearings[g_kf]])
+        all_j = np.concatenate([matched_bear, g_bear])
+        R, t = refine_pose(R, t, all_i, all_j, self.threshold)
+        # Matches the refined pose rejects do not continue their track: a descriptor match's corner
+        # starts a new one, a guided match (no corner there) is dropped.
+        consistent = sampson_angle(essential_from_pose(R, t), all_i, all_j) < s.track_threshold_factor * self.threshold
+        n_desc = len(m.kf_idx)
+        d_ok, g_ok = consistent[:n_desc], consistent[n_desc:]
+        kf_idx, frame_idx, matched_pts, matched_bear = m.kf_idx[d_ok], m.frame_idx[d_ok], matched_pts[d_ok], matched_bear[d_ok]
+        g_kf, g_pos, g_bear, g_desc = g_kf[g_ok], g_pos[g_ok], g_bear[g_ok], g_desc[g_ok]
+        # Harris corners of the frame: matched ones first, then unmatched ones not duplicating a guided match.
+        rest = np.setdiff1d(np.arange(len(f.keypoints)), frame_idx)
+        if len(g_pos) and len(rest) and s.duplicate_px > 0:
+            d, _ = cKDTree(g_pos).query(f.keypoints[rest], k=1)
+            rest = rest[d > s.duplicate_px]
+        keypoints = np.concatenate([matched_pts, f.keypoints[rest], g_pos])
+        bearings = np.concatenate([matched_bear, f.bearings[rest], g_bear])
+        descriptors = np.concatenate([f.descriptors[frame_idx], f.descriptors[rest], g_desc])
+        n_desc, n_rest = len(frame_idx), len(rest)
+        track_ids = np.concatenate([prev.track_ids[kf_idx], self.ids.new(n_rest), prev.track_ids[g_kf]])
+        inliers = np.ones(len(keypoints), bool)
+        inliers[n_desc:n_desc + n_rest] = False
+        guided = np.zeros(len(keypoints), bool)
+        guided[n_desc + n_rest:] = True
+        features = _Features(f.index, f.timestamp, f.image, f.smoothed, keypoints, bearings, descriptors)
+        keyframe = Keyframe(len(self.keyframes), f.index, f.timestamp, keypoints, bearings, track_ids, inliers, guided,
+                            R, t, True)
+        return self._emit(features, keyframe)
+
+
+def track_frames(frames: Iterable[Frame], camera: CameraModel, settings: FrontendSettings | None = None,
+                 seed: int = 0) -> Iterator[Keyframe]:
+    """Stream keyframes from a stream of frames."""
+    ft = FeatureTracker(camera, settings, seed)
+    for frame in frames:
+        yield from ft.process(frame)
+    yield from ft.finish()
+
+
+@dataclass
+class TrackingResult:
+    keyframes: list[Keyframe]
+    image_count: int
+    seconds: float
+
+    @property
+    def frames_per_second(self) -> float:
+        return self.image_count / max(self.seconds, 1e-9)
+
+
+def run_tracking(dataset_path, out_dir, settings=None, progress=None) -> TrackingResult:
+    """Track a dataset and write frames.csv, trajectory.tum, tracks.csv and run.json into `out_dir`.
+
+    `settings` is a config.Settings (its `seed` and `frontend` sections are used). The folder is
+    written atomically. `progress(done, total, keyframes)` is called after every frame.
+    """
+    import json
+    import time
+    from pathlib import Path
+
+    from pipemap import __version__
+    from pipemap.config import Settings
+    from pipemap.dataset import load_dataset
+    from pipemap.frontend.keyframes import chain_poses
+    from pipemap.frontend.tracks_io import write_frames_csv, write_tracks_csv
+    from pipemap.output import result_folder
+    from pipemap.trajectory import write_tum
+
+    settings = settings or Settings()
+    dataset = load_dataset(dataset_path)
+    total = len(dataset)
+    with result_folder(Path(out_dir)) as tmp:
+        ft = FeatureTracker(dataset.camera, settings.frontend, settings.seed)
+        start = time.perf_counter()
+        done = 0
+        for frame in dataset.frames():
+            ft.process(frame)
+            done += 1
+            if progress is not None:
+                progress(done, total, len(ft.keyframes))
+        ft.finish()
+        seconds = time.perf_counter() - start
+        keyframes = ft.keyframes
+        write_frames_csv(tmp / "frames.csv", done, [k.index for k in keyframes])
+        write_tum(tmp / "trajectory.tum", chain_poses(keyframes),
+                  header="pipemap front end: keyframe poses chained from relative poses, one unit per keyframe step")
+        write_tracks_csv(tmp / "tracks.csv", keyframes)
+        run = {
+            "version": __version__,
+            "stage": "track",
+            "input": str(dataset.root),
+            "settings": settings.to_dict(),
+            "frames": done,
+            "keyframes": len(keyframes),
+            "lost_keyframes": sum(1 for k in keyframes[1:] if not k.pose_valid),
+            "seconds": round(seconds, 3),
+            "frames_per_second": round(done / max(seconds, 1e-9), 2),
+        }
+        (tmp / "run.json").write_text(json.dumps(run, indent=2) + "\n")
+    return TrackingResult(keyframes, done, seconds)
