@@ -29,8 +29,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from pipemap.dataset import load_dataset
 from pipemap.evaluation.tracking import evaluate_tracking
 from pipemap.sim.simulate import wall_caster

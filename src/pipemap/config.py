@@ -15,6 +15,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from pipemap.errors import PipemapError
+from pipemap.yamlfile import read_yaml
 
 
 class _Section(BaseModel):
@@ -157,12 +158,7 @@ def load_settings(path: str | Path | None = None, overrides: list[str] | tuple[s
     where = "--set"
     if path is not None:
         where = str(path)
-        try:
-            loaded = yaml.safe_load(Path(path).read_text())
-        except FileNotFoundError:
-            raise PipemapError("settings file not found", path) from None
-        except (OSError, yaml.YAMLError) as exc:
-            raise PipemapError(f"cannot parse YAML: {str(exc).splitlines()[0]}", path) from None
+        loaded = read_yaml(path, "settings file", mapping=False)
         if loaded is not None and not isinstance(loaded, dict):
             raise PipemapError("expected a mapping of sections", path)
         data = loaded or {}

@@ -9,10 +9,10 @@ from typing import Iterator
 
 import cv2
 import numpy as np
-import yaml
 
 from pipemap.camera import CameraModel, camera_from_dict
 from pipemap.errors import PipemapError
+from pipemap.yamlfile import read_yaml
 from pipemap.network import PipeNetwork, load_network
 from pipemap.trajectory import Trajectory, read_tum
 
@@ -189,14 +189,7 @@ def load_dataset(path: str | Path) -> Dataset:
         where = path if path.exists() else yaml_path
         raise PipemapError("no dataset.yaml here" if path.is_dir() else "dataset not found", where)
     root = yaml_path.parent
-    try:
-        data = yaml.safe_load(yaml_path.read_text())
-    except (OSError, UnicodeDecodeError) as exc:
-        raise PipemapError(f"cannot read: {exc}", yaml_path) from None
-    except yaml.YAMLError as exc:
-        raise PipemapError(f"cannot parse YAML: {str(exc).splitlines()[0]}", yaml_path) from None
-    if not isinstance(data, dict):
-        raise PipemapError("expected a mapping at the top level", yaml_path)
+    data = read_yaml(yaml_path, "dataset.yaml")
     fmt = data.get("format")
     if fmt != FORMAT:
         raise PipemapError(f"expected '{FORMAT}', found {fmt!r}", yaml_path, "format")

@@ -9,6 +9,7 @@ import numpy as np
 import yaml
 
 from pipemap.errors import PipemapError
+from pipemap.yamlfile import read_yaml
 
 FORMAT = "pipemap-network/1"
 
@@ -82,14 +83,7 @@ def _vec3(value, path, key) -> np.ndarray:
 
 def load_network(path: str | Path) -> PipeNetwork:
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise PipemapError("network file not found", path) from None
-    except (OSError, yaml.YAMLError) as exc:
-        raise PipemapError(f"cannot parse YAML: {str(exc).splitlines()[0]}", path) from None
-    if not isinstance(data, dict):
-        raise PipemapError("expected a mapping at the top level", path)
+    data = read_yaml(path, "network file")
     if data.get("format") != FORMAT:
         raise PipemapError(f"expected '{FORMAT}', found {data.get('format')!r}", path, "format")
     try:

@@ -7,7 +7,6 @@ off). The solver starts from poses and points at 0.9 x the true scale, perturbed
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -15,9 +14,8 @@ import pytest
 from pipemap.backend import BundleProblem, Observations
 from pipemap.sim.sparse_window import RADIUS, PipeWindow, make_pipe_window
 from pipemap.backend.schur import SchurStructure, block_sum, observation_pairs, solve_damped
-from pipemap.camera import PolynomialCamera
-from pipemap.geometry.cylinder import Cylinder, fit_cylinder, rot_z
-from pipemap.geometry.rotations import exp_so3, log_so3, look_rotation
+from pipemap.geometry.cylinder import Cylinder, fit_cylinder
+from pipemap.geometry.rotations import log_so3
 
 def observations_of(w: PipeWindow) -> Observations:
     return Observations(w.obs_camera, w.obs_point, w.obs_pixels)

@@ -8,6 +8,7 @@ the project's simulator when it is available.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -81,9 +82,8 @@ def pipe_scene() -> PipeScene:
     return straight_pipe_scene()
 
 
-def write_dataset(scene: PipeScene, root, saturate: tuple[int, ...] = ()) -> "Path":
+def write_dataset(scene: PipeScene, root, saturate: tuple[int, ...] = ()) -> Path:
     """The scene as a dataset folder (formats.md) with ground truth; frames in `saturate` are pure glare."""
-    from pathlib import Path
 
     import yaml
 
@@ -117,13 +117,10 @@ def glare_dataset(pipe_scene, tmp_path_factory):
     return write_dataset(pipe_scene, tmp_path_factory.mktemp("glare") / "data", saturate=(15, 16))
 
 
-def _simulate_or_skip(preset: str, out, **kwargs):
-    try:
-        from pipemap.sim.simulate import simulate
-    except ImportError:
-        pytest.skip("pipemap.sim.simulate is not available")
-    simulate(preset, out, **kwargs)
-    return out
+def _simulate(preset: str, out, **kwargs):
+    from pipemap.sim.simulate import simulate
+
+    return simulate(preset, out, **kwargs)
 
 
 # 640 x 480: at 320 x 240 a pixel spans 0.8 deg and the rendered wall gives ~130 matches per
@@ -136,7 +133,7 @@ SIM_TEE = dict(preset="demo-loop", width=640, height=480, frames=60, seed=0, spa
 def sim_straight(tmp_path_factory):
     """fisheye-straight, 30 frames; with `wall`, the simulator's exact wall for judging."""
     kw = dict(SIM_STRAIGHT)
-    out = _simulate_or_skip(kw.pop("preset"), tmp_path_factory.mktemp("sim") / "straight", **kw)
+    out = _simulate(kw.pop("preset"), tmp_path_factory.mktemp("sim") / "straight", **kw)
     return out
 
 
@@ -144,7 +141,7 @@ def sim_straight(tmp_path_factory):
 def sim_tee(tmp_path_factory):
     """demo-loop through its first tee (closest approach at frame 34), 60 frames 2 cm apart."""
     kw = dict(SIM_TEE)
-    out = _simulate_or_skip(kw.pop("preset"), tmp_path_factory.mktemp("sim") / "tee", **kw)
+    out = _simulate(kw.pop("preset"), tmp_path_factory.mktemp("sim") / "tee", **kw)
     return out
 
 

@@ -96,7 +96,7 @@ def solve_damped(eq: NormalEquations, structure: SchurStructure, lam: float):
     `structure` is `SchurStructure(eq.obs_cam, eq.obs_pt, C, M)`.
     """
     st = structure
-    C, M, q = len(eq.U), len(eq.V), len(eq.gx)
+    C, q = len(eq.U), len(eq.gx)
     eye3 = np.eye(3)
     diagV = np.einsum("mii->mi", eq.V)
     V = eq.V + (lam * diagV + 1e-12 * (diagV.max(initial=0.0) + 1.0))[:, :, None] * eye3

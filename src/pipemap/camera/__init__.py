@@ -11,6 +11,7 @@ from pipemap.camera.kannala_brandt import KannalaBrandtCamera
 from pipemap.camera.pinhole import PinholeCamera
 from pipemap.camera.polynomial import PolynomialCamera
 from pipemap.errors import PipemapError
+from pipemap.yamlfile import read_yaml
 
 MODELS: dict[str, type[CameraModel]] = {
     cls.model: cls for cls in (PolynomialCamera, KannalaBrandtCamera, PinholeCamera)
@@ -46,13 +47,7 @@ def camera_from_dict(block, where: str | Path | None = None) -> CameraModel:
 
 def load_camera(path: str | Path) -> CameraModel:
     """Read a camera file: either a bare camera block or a file with a top-level `camera:` key."""
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise PipemapError("camera file not found", path) from None
-    except (OSError, yaml.YAMLError) as exc:
-        raise PipemapError(f"cannot parse YAML: {str(exc).splitlines()[0]}", path) from None
+    data = read_yaml(path, "camera file", mapping=False)
     if isinstance(data, dict) and "camera" in data:
         data = data["camera"]
     return camera_from_dict(data, path)

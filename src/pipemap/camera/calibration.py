@@ -9,7 +9,6 @@ A pose maps board to camera, X_cam = exp(rvec) X_board + tvec, with inner corner
 
 from __future__ import annotations
 
-import glob as globlib
 from dataclasses import dataclass, field
 from pathlib import Path
 

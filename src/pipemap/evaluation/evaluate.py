@@ -12,6 +12,7 @@ import numpy as np
 import yaml
 
 from pipemap.errors import PipemapError
+from pipemap.yamlfile import read_yaml
 from pipemap.evaluation.metrics import (
     ASSOCIATION_TOLERANCE_S,
     AteResult,
@@ -111,16 +112,7 @@ def _finite_or_none(value):
 def read_junctions(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Read a result's `junctions.yaml` (pipemap-junctions/1): ids and (N, 3) centroids, in order."""
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise PipemapError("junctions file not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise PipemapError(f"cannot read: {exc}", path) from None
-    except yaml.YAMLError as exc:
-        raise PipemapError(f"cannot parse YAML: {str(exc).splitlines()[0]}", path) from None
-    if not isinstance(data, dict):
-        raise PipemapError("expected a mapping at the top level", path)
+    data = read_yaml(path, "junctions file")
     if data.get("format") != JUNCTIONS_FORMAT:
         raise PipemapError(f"expected '{JUNCTIONS_FORMAT}', found {data.get('format')!r}", path, "format")
     items = data.get("junctions")

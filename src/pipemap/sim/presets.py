@@ -18,11 +18,12 @@ for, simulate() keeps the first N frames of the route at the same spacing.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from pipemap.camera import KannalaBrandtCamera, CameraModel, PinholeCamera, PolynomialCamera
+from pipemap.camera import CameraModel, KannalaBrandtCamera, PinholeCamera, PolynomialCamera
 from pipemap.errors import PipemapError
 from pipemap.sim.network_model import PipeScene, route_polyline, straight_scene, tee_loop_scene
 from pipemap.sim.render import Appearance

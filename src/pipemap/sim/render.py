@@ -4,7 +4,7 @@ The camera's bearings are unprojected once (pipemap's own models, valid past 90 
 the pixels inside the image circle are traced. Per frame: ray cast (raycast.py), wall
 coordinates (h along the piece, s = r * phi around it), albedo from the piece's WallSurface with
 a footprint = distance * pixel angle / cos(incidence) (trilinear mip-mapping), radiance from
-the LED ring (lighting.shade), then the sensor. Pixels outside the image circle are black;
+the LED ring (LedRing.light on a stencil), then the sensor. Pixels outside the image circle are black;
 rays that leave every nearby piece (far down the network) see nothing and are black too.
 """
 
@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pipemap.camera import CameraModel
-from pipemap.sim.lighting import LedRing, Sensor, auto_exposure, shade
+from pipemap.sim.lighting import LedRing, Sensor, auto_exposure
 from pipemap.sim.network_model import PipeScene
 from pipemap.sim.raycast import RayCaster
 from pipemap.sim.texture import WallTexture
