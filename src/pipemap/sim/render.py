@@ -91,37 +91,6 @@ def camera_pixels(camera: CameraModel) -> Pixels:
     return Pixels(valid, index, b.copy(), np.ascontiguousarray(b.T), theta, angle.ravel()[index].copy())
 
 
-@dataclass(frozen=True)
-class LightingStencil:
-    """LED lighting varies slowly over a smooth wall, so it is computed exactly on every second pixel
-    in each direction (the anchors) and interpolated bilinearly between them, except where a pixel's
-    four anchors do not lie on the same smooth piece of wall (pipe edges, tee openings, end caps)."""
-
-    anchor: np.ndarray  # (N,) bool over the valid pixels
-    complete: np.ndarray  # (N,) bool: all four anchors are valid pixels
-    corners: np.ndarray  # (4, N) valid-pixel indices of the surrounding anchors (own index if none)
-    weights: np.ndarray  # (4, N) float32 bilinear weights
-
-
-def lighting_stencil(pixels: Pixels) -> LightingStencil:
-    H, W = pixels.valid.shape
-    n = len(pixels.index)
-    lookup = np.full(H * W, -1, np.int64)
-    lookup[pixels.index] = np.arange(n)
-    r, c = np.divmod(pixels.index, W)
-    fr, fc = (r % 2) * 0.5, (c % 2) * 0.5
-    r0, c0 = r - r % 2, c - c % 2
-    r1, c1 = r0 + 2 * (r % 2), c0 + 2 * (c % 2)
-    rows = np.stack([r0, r0, r1, r1])
-    cols = np.stack([c0, c1, c0, c1])
-    inside = (rows < H) & (cols < W)
-    corners = np.where(inside, lookup[np.minimum(rows, H - 1) * W + np.minimum(cols, W - 1)], -1)
-    complete = (corners >= 0).all(0)
-    corners = np.where(corners >= 0, corners, np.arange(n)).astype(np.int32)
-    weights = np.stack([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc]).astype(np.float32)
-    return LightingStencil((r % 2 == 0) & (c % 2 == 0), complete, corners, weights)
-
-
 class Renderer:
     """Renders frames of `scene` through `camera`; exposure is fixed on the first frame rendered
     (or by `appearance.exposure`), as the robots ran with a fixed exposure."""
@@ -131,7 +100,6 @@ class Renderer:
         self.camera = camera
         self.appearance = appearance
         self.pixels = camera_pixels(camera)
-        self.stencil = lighting_stencil(self.pixels)
         self.caster = RayCaster(scene, dtype=np.float32)
         self.texture = WallTexture(int(seed), appearance.mm_per_px, appearance.texture_style)
         self.leds = appearance.leds()
@@ -206,36 +174,50 @@ class Renderer:
         return rad.reshape(self.camera.height, self.camera.width)
 
     def _lighting(self, P: np.ndarray, N: np.ndarray, hits):
-        """Irradiance and specular (N,) over the valid pixels: exact on anchors and on pixels whose
-        anchors straddle an edge, interpolated elsewhere."""
-        st, lit = self.stencil, hits.hit
-        # one key per smooth piece of wall: the pipe, and whether it is the end cap
-        key = np.where(lit, hits.pipe * 2 + hits.cap, -1)
-        depth = hits.t.astype(np.float32, copy=False)
-        smooth = st.complete & lit & ~st.anchor
-        dmin = dmax = depth
-        for ci in st.corners:
-            smooth &= key[ci] == key
-            dc = depth[ci]
-            dmin, dmax = np.minimum(dmin, dc), np.maximum(dmax, dc)
-        smooth &= dmax < np.float32(1.03) * dmin
-        exact = np.flatnonzero(lit & ~smooth)
-        between = np.flatnonzero(smooth)
+        """Irradiance and specular (N,) over the valid pixels.
+
+        LED light varies slowly over a smooth wall, so it is computed exactly on every second pixel
+        in each direction (the anchors) and interpolated between neighbouring anchors on the same
+        smooth piece of wall; pixels whose anchors straddle a pipe edge, tee opening, end cap or
+        depth jump are computed exactly too."""
+        H, W = self.camera.height, self.camera.width
+        index, lit = self.pixels.index, hits.hit
+        key = np.full(H * W, -1, np.int32)
+        key[index[lit]] = hits.pipe[lit] * 2 + hits.cap[lit]
+        depth = np.zeros(H * W, np.float32)
+        depth[index[lit]] = hits.t[lit]
+        key, depth = key.reshape(H, W), depth.reshape(H, W)
+        ka, da = key[0::2, 0::2], depth[0::2, 0::2]
+
+        def joined(k0, k1, d0, d1):
+            return (k0 == k1) & (k0 >= 0) & (np.maximum(d0, d1) < np.float32(1.03) * np.minimum(d0, d1))
+
+        across = joined(ka[:, :-1], ka[:, 1:], da[:, :-1], da[:, 1:])
+        down = joined(ka[:-1], ka[1:], da[:-1], da[1:])
+        cell = across[:-1] & across[1:] & down[:, :-1] & down[:, 1:]
+        # the in-between pixels: (even row, odd col), (odd row, even col), (odd row, odd col)
+        parts = [((0, 1), across, ka[:, :-1]), ((1, 0), down, ka[:-1]), ((1, 1), cell, ka[:-1, :-1])]
+        smooth = np.zeros((H, W), bool)
+        for (r0, c0), ok, k in parts:
+            view = smooth[r0::2, c0::2][: ok.shape[0], : ok.shape[1]]
+            view[...] = ok & (key[r0::2, c0::2][: ok.shape[0], : ok.shape[1]] == k)
+        exact = np.flatnonzero(lit & ~smooth.ravel()[index])
         shininess = self.appearance.shininess if self.appearance.specular_strength else None
-        e_irr, e_spec = self.leds.light(np.ascontiguousarray(P[:, exact].T), np.ascontiguousarray(N[:, exact].T),
-                                        shininess)
+        values = self.leds.light(np.ascontiguousarray(P[:, exact].T), np.ascontiguousarray(N[:, exact].T), shininess)
         out = []
-        for exact_values in (e_irr, e_spec):
+        for exact_values in values:
             if exact_values is None:
                 out.append(None)
                 continue
-            v = np.zeros(len(lit), np.float32)
-            v[exact] = exact_values
-            acc = np.zeros(len(between), np.float32)
-            for ci, wi in zip(st.corners, st.weights):
-                acc += wi[between] * v[ci[between]]
-            v[between] = acc
-            out.append(v)
+            img = np.zeros((H, W), np.float32)
+            img.ravel()[index[exact]] = exact_values
+            a = img[0::2, 0::2]
+            means = [(a[:, :-1] + a[:, 1:]) * 0.5, (a[:-1] + a[1:]) * 0.5,
+                     (a[:-1, :-1] + a[:-1, 1:] + a[1:, :-1] + a[1:, 1:]) * 0.25]
+            for ((r0, c0), ok, _), mean in zip(parts, means):
+                view = img[r0::2, c0::2][: ok.shape[0], : ok.shape[1]]
+                np.copyto(view, mean, where=smooth[r0::2, c0::2][: ok.shape[0], : ok.shape[1]])
+            out.append(img.ravel()[index])
         return out[0], out[1]
 
     # -- images ---------------------------------------------------------------------------------
