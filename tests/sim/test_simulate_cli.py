@@ -60,3 +60,17 @@ def test_evaluate_ground_truth_and_scaled_copy(tmp_path, straight_run, scale):
 def test_evaluate_missing_trajectory_is_one_line(tmp_path, straight_run):
     r = runner.invoke(app, ["evaluate", str(tmp_path), str(straight_run)])
     assert r.exit_code == 2 and "trajectory.tum" in r.output
+
+
+def test_photo_texture_option_changes_the_wall(tmp_path):
+    import cv2
+
+    frames = {}
+    for style in ("procedural", "brick"):
+        r = runner.invoke(app, ["simulate", "fisheye-straight", "--out", str(tmp_path / style), "--width", "96",
+                                "--height", "72", "--frames", "1", "--texture", style])
+        assert r.exit_code == 0, r.output
+        frames[style] = cv2.imread(str(tmp_path / style / "images/000000.png"), cv2.IMREAD_GRAYSCALE).astype(float)
+    assert np.abs(frames["brick"] - frames["procedural"]).mean() > 3
+    bad = runner.invoke(app, ["simulate", "fisheye-straight", "--out", str(tmp_path / "x"), "--texture", "marble"])
+    assert bad.exit_code == 2 and "marble" in bad.output and not (tmp_path / "x").exists()

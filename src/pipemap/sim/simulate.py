@@ -20,11 +20,14 @@ import cv2
 import numpy as np
 import yaml
 
+from dataclasses import replace
+
 from pipemap.errors import PipemapError
 from pipemap.gain_mask import save_gain_mask, smooth_mask
 from pipemap.output import result_folder
 from pipemap.sim.presets import PRESETS, Setup, _info, get_setup, list_presets
 from pipemap.sim.render import Renderer, frame_rng
+from pipemap.sim.texture import STYLES
 from pipemap.sim.route import AxisPath, camera_trajectory, drive_distances, visits
 from pipemap.network import save_network
 from pipemap.trajectory import Trajectory, write_tum
@@ -48,18 +51,22 @@ class Plan:
         return len(self.trajectory)
 
 
-def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, route=None, spacing_m=None) -> Plan:
-    """Resolve a preset: the setup, every frame's true pose and the junction visits."""
+def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, route=None, spacing_m=None,
+         texture: str | None = None) -> Plan:
+    """Resolve a preset: the setup, every frame's true pose and the junction visits.
+    `texture` replaces the preset's wall style (procedural, brick, gravel: real photos)."""
     if frames is not None and (not isinstance(frames, (int, np.integer)) or isinstance(frames, bool) or frames < 1):
         raise PipemapError(f"the number of frames must be a positive integer, got {frames!r}", key="frames")
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
         raise PipemapError(f"the seed must be an integer, got {seed!r}", key="seed")
     setup = get_setup(preset, width, height, route, int(seed))
+    if texture is not None:
+        if texture not in STYLES:
+            raise PipemapError(f"unknown wall texture {texture!r} (expected one of {', '.join(STYLES)})", key="texture")
+        setup.appearance = replace(setup.appearance, texture_style=texture)
     if spacing_m is not None:
         if not spacing_m > 0:
             raise PipemapError(f"frame spacing must be positive, got {spacing_m}", key="spacing_m")
-        from dataclasses import replace
-
         setup.drive = replace(setup.drive, spacing_m=float(spacing_m))
     path = AxisPath(setup.path_vertices, setup.drive.turn_radius_m)
     if setup.still:
@@ -73,7 +80,7 @@ def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, ro
 
 def simulate(preset: str, out: Path, *, width: int | None = None, height: int | None = None, frames: int | None = None,
              seed: int = 0, route: str | None = None, progress: Callable[[int, int], None] | None = None,
-             spacing_m: float | None = None, motion_blur: int = 1) -> Path:
+             spacing_m: float | None = None, motion_blur: int = 1, texture: str | None = None) -> Path:
     """Render `preset` into the dataset folder `out` and return it.
 
     width/height: image size (intrinsics scale, field of view kept); frames: the first N frames
@@ -89,7 +96,8 @@ def simulate(preset: str, out: Path, *, width: int | None = None, height: int | 
         with result_folder(out) as tmp:
             info.writer(tmp, width=width, height=height, frames=frames, seed=seed, route=route, progress=progress)
         return out
-    p = plan(preset, width=width, height=height, frames=frames, seed=seed, route=route, spacing_m=spacing_m)
+    p = plan(preset, width=width, height=height, frames=frames, seed=seed, route=route, spacing_m=spacing_m,
+             texture=texture)
     if not isinstance(motion_blur, (int, np.integer)) or motion_blur < 1:
         raise PipemapError(f"motion blur takes a number of sub-frames >= 1, got {motion_blur!r}", key="motion_blur")
     setup = p.setup
