@@ -3,7 +3,7 @@
     python benchmarks/bench_simulator.py [--frames 150] [--cores 2]
 
 Renders demo-loop (tees and straights), fisheye-straight and paper-loop at 640x480 into a
-temporary folder, pinned to `--cores` CPUs. The rate counts from the first finished frame to
+temporary folder, pinned to `--cores` CPUs, with `--workers` rendering processes. The rate counts from the first finished frame to
 the last (set-up -- texture baking, bearings -- is reported separately). Memory: peak RSS of
 the process, and the RSS growth between the first and the last tenth of the frames (must stay
 ~0: frames stream to disk). Prints a table and writes benchmarks/results/simulator.json.
@@ -30,7 +30,7 @@ def rss_mb() -> float:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
-def run_case(preset: str, route: str, frames: int, width: int, height: int) -> dict:
+def run_case(preset: str, route: str, frames: int, width: int, height: int, workers: int | None) -> dict:
     marks: list[tuple[int, float, float]] = []
 
     def progress(i, n):
@@ -39,7 +39,7 @@ def run_case(preset: str, route: str, frames: int, width: int, height: int) -> d
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         simulate(preset, Path(tmp) / "out", width=width, height=height, frames=frames, seed=0, route=route,
-                 progress=progress)
+                 progress=progress, workers=workers)
         total = time.perf_counter() - t0
     n = len(marks)
     first, last = marks[0], marks[-1]
@@ -47,7 +47,7 @@ def run_case(preset: str, route: str, frames: int, width: int, height: int) -> d
     early = max(m[2] for m in marks[:tenth])
     late = max(m[2] for m in marks[-tenth:])
     return {
-        "preset": preset, "route": route, "width": width, "height": height, "frames": n,
+        "preset": preset, "route": route, "width": width, "height": height, "frames": n, "workers": workers or "auto",
         "frames_per_s": round((n - 1) / (last[1] - first[1]), 2),
         "setup_s": round(first[1] - t0 - (last[1] - first[1]) / max(n - 1, 1), 2),
         "total_s": round(total, 2),
@@ -61,18 +61,21 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--cores", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=None, help="rendering processes (default: one per core)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "simulator.json")
     args = ap.parse_args()
     if hasattr(os, "sched_setaffinity") and args.cores:
         os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[: args.cores]))
-    results = [run_case(p, r, args.frames, args.width, args.height) for p, r in CASES]
+    results = [run_case(p, r, args.frames, args.width, args.height, args.workers) for p, r in CASES]
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak_worker = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     print(f"{'preset':<18}{'route':<9}{'size':<10}{'frames':>7}{'frames/s':>10}{'setup s':>9}{'RSS growth MB':>15}")
     for r in results:
         print(f"{r['preset']:<18}{r['route']:<9}{r['width']}x{r['height']:<6}{r['frames']:>7}{r['frames_per_s']:>10}"
               f"{r['setup_s']:>9}{r['rss_growth_mb']:>15}")
-    print(f"peak RSS {peak:.0f} MB on {len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else '?'} cores")
+    print(f"peak RSS {peak:.0f} MB (largest rendering worker {peak_worker:.0f} MB) on {len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else '?'} cores")
     doc = {"benchmark": "simulator", "cases": results, "peak_rss_mb": round(peak, 1),
+           "peak_worker_rss_mb": round(peak_worker, 1),
            "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
            "machine": platform.machine(), "python": platform.python_version(),
            "time": time.strftime("%Y-%m-%dT%H:%M:%S")}

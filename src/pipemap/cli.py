@@ -125,6 +125,7 @@ def simulate(
     spacing: Optional[float] = typer.Option(None, "--spacing", help="Metres between frames (default: the preset's)."),
     motion_blur: int = typer.Option(1, "--motion-blur", help="Sub-frames averaged per frame (1: no blur)."),
     texture: Optional[str] = typer.Option(None, "--texture", help="Wall style: procedural, brick or gravel (photos)."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="Rendering processes (default: one per core)."),
 ) -> None:
     """Render a synthetic dataset with exact ground truth (dataset.yaml, images/, ground_truth/)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -139,7 +140,8 @@ def simulate(
             bar.update(task, completed=i, total=n)
 
         render_dataset(preset, out, width=width, height=height, frames=frames, seed=seed, route=route,
-                       progress=progress, spacing_m=spacing, motion_blur=motion_blur, texture=texture)
+                       progress=progress, spacing_m=spacing, motion_blur=motion_blur, texture=texture,
+                       workers=workers)
     n = len(list((out / "images").glob("*.png")))
     console.print(f"{preset}: {n} frames written to {out}")
 

@@ -75,3 +75,11 @@ def test_photo_texture_option_changes_the_wall(tmp_path):
     assert np.abs(frames["brick"] - frames["procedural"])[wall].mean() > 5
     bad = runner.invoke(app, ["simulate", "fisheye-straight", "--out", str(tmp_path / "x"), "--texture", "marble"])
     assert bad.exit_code == 2 and "marble" in bad.output and not (tmp_path / "x").exists()
+
+
+def test_images_do_not_depend_on_the_number_of_workers(tmp_path):
+    from pipemap.sim.simulate import simulate
+
+    runs = [simulate("demo-loop", tmp_path / f"w{w}", width=96, height=72, frames=6, seed=2, workers=w) for w in (1, 2)]
+    for a, b in zip(*(sorted((r / "images").glob("*.png")) for r in runs)):
+        assert a.read_bytes() == b.read_bytes()

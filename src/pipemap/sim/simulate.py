@@ -11,6 +11,8 @@ Frame count: `frames=N` keeps the first N frames of the preset's route at its sp
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import queue
 import threading
 from pathlib import Path
@@ -80,13 +82,17 @@ def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, ro
 
 def simulate(preset: str, out: Path, *, width: int | None = None, height: int | None = None, frames: int | None = None,
              seed: int = 0, route: str | None = None, progress: Callable[[int, int], None] | None = None,
-             spacing_m: float | None = None, motion_blur: int = 1, texture: str | None = None) -> Path:
+             spacing_m: float | None = None, motion_blur: int = 1, texture: str | None = None,
+             workers: int | None = None) -> Path:
     """Render `preset` into the dataset folder `out` and return it.
 
     width/height: image size (intrinsics scale, field of view kept); frames: the first N frames
     of the route; seed: textures, wobble, speed and sensor noise; route: the preset's variant
     (list_presets() names them); progress(i, n) after each frame; motion_blur: sub-frame renders
-    averaged per frame (1: none), spread over the motion since the previous frame.
+    averaged per frame (1: none), spread over the motion since the previous frame; workers:
+    rendering processes (None: one per available core for long runs). Every frame's noise is
+    seeded by its index and the exposure is fixed before the workers start, so the images do not
+    depend on the number of workers.
     """
     out = Path(out)
     info = _info(preset)
@@ -103,18 +109,16 @@ def simulate(preset: str, out: Path, *, width: int | None = None, height: int | 
     setup = p.setup
     renderer = Renderer(setup.scene, setup.camera, setup.appearance, seed=int(seed))
     n = len(p)
+    workers = _worker_count(workers, n)
     with result_folder(out) as tmp:
         (tmp / "images").mkdir()
         (tmp / "ground_truth").mkdir()
         mean = np.zeros((setup.camera.height, setup.camera.width), np.float64) if setup.gain_mask else None
-        with _PngWriter() as writer:
-            for i in range(n):
-                img = renderer.render(_sub_poses(p, i, motion_blur), frame_rng(seed, i))
-                if mean is not None:
-                    mean += img
-                writer.put(tmp / "images" / f"{i:06d}.png", img)
-                if progress is not None:
-                    progress(i + 1, n)
+        for i, img in enumerate(_render_frames(renderer, p, seed, motion_blur, tmp / "images", workers)):
+            if mean is not None:
+                mean += img
+            if progress is not None:
+                progress(i + 1, n)
         doc = {
             "format": "pipemap-dataset/1",
             "name": f"{preset}" + (f"-{route}" if route else ""),
@@ -138,6 +142,51 @@ def simulate(preset: str, out: Path, *, width: int | None = None, height: int | 
         }
         (tmp / "ground_truth" / "simulation.yaml").write_text(yaml.safe_dump(_plain(record), sort_keys=False))
     return out
+
+
+def _worker_count(workers: int | None, n: int) -> int:
+    if workers is not None:
+        if not isinstance(workers, (int, np.integer)) or workers < 1:
+            raise PipemapError(f"workers must be a positive integer, got {workers!r}", key="workers")
+        return int(workers)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return 1 if n < 60 else max(1, min(cores, 8))  # a short run does not repay starting processes
+
+
+_JOB: tuple | None = None  # what forked rendering workers share with the parent (copy-on-write)
+
+
+def _render_frames(renderer: Renderer, p: Plan, seed: int, motion_blur: int, folder: Path, workers: int):
+    """Render and write every frame in order, yielding each image; with several workers, forked
+    processes render and write frames while this one collects them in order."""
+    global _JOB
+    n = len(p)
+    if workers == 1 or n == 1:
+        with _PngWriter() as writer:
+            for i in range(n):
+                img = renderer.render(_sub_poses(p, i, motion_blur), frame_rng(seed, i))
+                writer.put(folder / f"{i:06d}.png", img)
+                yield img
+        return
+    # The exposure is fixed on frame 0 exactly as a single process would, before forking.
+    poses = _sub_poses(p, 0, motion_blur)
+    poses = [poses] if isinstance(poses, tuple) else poses
+    rad = sum(renderer.radiance(R, t) for R, t in poses) / len(poses)
+    renderer.fix_exposure(rad.astype(np.float32))
+    _JOB = (renderer, p, seed, motion_blur, folder)
+    try:
+        with multiprocessing.get_context("fork").Pool(workers) as pool:
+            yield from pool.imap(_render_one, range(n), chunksize=2)
+    finally:
+        _JOB = None
+
+
+def _render_one(i: int) -> np.ndarray:
+    renderer, p, seed, motion_blur, folder = _JOB
+    img = renderer.render(_sub_poses(p, i, motion_blur), frame_rng(seed, i))
+    if not cv2.imwrite(str(folder / f"{i:06d}.png"), img):
+        raise PipemapError("cannot write image", folder / f"{i:06d}.png")
+    return img
 
 
 def _plain(x):
