@@ -62,10 +62,11 @@ class ClassificationSettings(_Section):
     """Straight vs T-intersection image classification (fisheye paper III-B)."""
 
     subsample: int = Field(2, gt=0, description="keep every n-th row and column")
-    dark_threshold: float = Field(0.15, gt=0, lt=1, description="dark-blob threshold, fraction of the frame's grey range")
-    erosion_px: int = Field(2, ge=0)
+    dark_threshold: float = Field(
+        0.25, gt=0, lt=1, description="dark blobs: below this fraction of the 1st..99th percentile grey range")
+    erosion_px: int = Field(2, ge=0, description="erosion radius in sub-sampled pixels")
     ratio_threshold: float = Field(1.5, gt=0, description="straight if L_p / L is below this")
-    min_cluster_keyframes: int = Field(5, gt=0, description="temporal filter: minimum straight/T cluster size")
+    min_cluster_keyframes: int = Field(5, gt=0, description="temporal filter: minimum straight/T run, in the frames classified")
 
 
 class BundleSettings(_Section):
