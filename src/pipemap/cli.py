@@ -275,6 +275,39 @@ def track(
                   f"{result.frames_per_second:.1f} frames/s -> {out}")
 
 
+@app.command("run")
+@friendly
+def run_command(
+    dataset: Path = typer.Argument(..., help="Dataset folder or its dataset.yaml."),
+    out: Path = typer.Option(..., "--out", help="Result folder to create (must not exist or be empty)."),
+    config: Optional[Path] = CONFIG_OPTION,
+    set_: List[str] = SET_OPTION,
+) -> None:
+    """Map a fisheye dataset: feature tracking, then metric straight-section VO with cylinder-regularised
+    sliding-window SBA. Writes trajectory.tum, sparse.ply, frames.csv and run.json."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from pipemap.camera import PinholeCamera
+    from pipemap.dataset import load_dataset
+    from pipemap.pipeline import run_pipeline
+
+    settings = _load_settings(config, set_)
+    if isinstance(load_dataset(dataset).camera, PinholeCamera):
+        raise PipemapError("the fisheye pipeline needs a fisheye camera (polynomial or kannala_brandt); "
+                           "this dataset's camera is pinhole", dataset)
+    with Progress(TextColumn("mapping"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[kf]} keyframes"),
+                  TimeRemainingColumn(), console=err_console, transient=True) as bar:
+        task = bar.add_task("frames", total=None, kf=0)
+
+        def progress(done: int, total: int, keyframes: int) -> None:
+            bar.update(task, completed=done, total=total, kf=keyframes)
+
+        result = run_pipeline(dataset, out, settings, progress=progress)
+    stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())
+    console.print(f"{result.image_count} frames, {result.keyframe_count} keyframes, "
+                  f"{len(result.straight.points)} points -> {out}  ({stages})")
+
+
 @app.command()
 @friendly
 def evaluate(

@@ -83,6 +83,19 @@ class BundleSettings(_Section):
     tee_fit_length_m: float = Field(1.0, gt=0, description="length of straight pipe fitted each side of a tee")
 
 
+class StraightVOSettings(_Section):
+    """Straight-section VO (fisheye paper III-C) beyond the SBA itself: what the paper leaves open."""
+
+    min_parallax_deg: float = Field(2.0, gt=0, description="a new point needs this widest angle between its rays")
+    max_ray_error_deg: float = Field(0.3, gt=0, description="... and every observed bearing within this of its ray")
+    scale_min_parallax_deg: float = Field(0.5, ge=0, description="parallax of the pairs that carry the relative scale")
+    min_scale_points: int = Field(8, gt=0, description="fewer points: the step keeps the previous step's length")
+    first_window: int = Field(20, gt=1, description="keyframes before the first SBA and metric rescale of a section")
+    fixed_overlap: int | None = Field(None, gt=0, description="hold at most this many solved poses per window (None: all)")
+    min_window_points: int = Field(30, gt=0, description="fewer points: no window solve")
+    min_window_keyframes: int = Field(3, gt=1)
+
+
 class LoopClosureSettings(_Section):
     """Loop closure by pose-graph optimisation (fisheye paper III-E)."""
 
@@ -138,6 +151,7 @@ class Settings(_Section):
     frontend: FrontendSettings = FrontendSettings()
     classification: ClassificationSettings = ClassificationSettings()
     bundle: BundleSettings = BundleSettings()
+    straight_vo: StraightVOSettings = StraightVOSettings()
     loop_closure: LoopClosureSettings = LoopClosureSettings()
     appearance: AppearanceSettings = AppearanceSettings()
     dense: DenseSettings = DenseSettings()

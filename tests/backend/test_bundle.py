@@ -207,3 +207,12 @@ def test_bad_observation_indices_are_refused(window):
         BundleProblem(window.camera, (window.R0, window.t0), window.points0, obs)
     with pytest.raises(ValueError, match="disagree"):
         Observations([0, 1], [0], np.zeros((2, 2)))
+
+
+def test_a_single_free_pose_solves(window):
+    """A window whose poses are all held but one: no pair of free cameras shares a point."""
+    n = len(window.R0)
+    res = BundleProblem(window.camera, (window.R0, window.t0), window.points0, observations_of(window),
+                        cylinder=fit_cylinder(window.points0, RADIUS, reference=(window.R0[0], window.t0[0])),
+                        fixed_poses=tuple(range(n - 1))).solve()
+    assert np.isfinite(res.poses).all() and res.iterations >= 1

@@ -36,6 +36,8 @@ class BlockSummer:
         self.A = sp.csr_matrix((np.ones(self.k), (index, np.arange(self.k))), shape=(n, self.k))
 
     def __call__(self, blocks: np.ndarray) -> np.ndarray:
+        if self.k == 0:  # e.g. no pair of distinct free cameras shares a point
+            return np.zeros((self.n,) + blocks.shape[1:])
         out = self.A @ np.ascontiguousarray(blocks).reshape(self.k, -1)
         return np.asarray(out).reshape((self.n,) + blocks.shape[1:])
 

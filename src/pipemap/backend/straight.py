@@ -1,0 +1,375 @@
+"""Straight-section metric visual odometry (fisheye paper III-C): keyframes in, metric poses and points out.
+
+For each new keyframe:
+  1. its pose is the previous keyframe's composed with the front end's five-point (R, unit t);
+  2. the length of t (the relative scale) is the weighted median, over tracks that already have a
+     3D point, of |point depth in the previous keyframe| / (depth triangulated in the unit-baseline
+     pair); weights are the squared parallax of the pair, so far points near the optical axis count little;
+  3. tracks without a point are triangulated from all their observations (midpoint + angular
+     Gauss-Newton on bearings, `triangulate`), kept when in front of every ray, with enough parallax
+     and consistent with every bearing.
+Windows: once a section has `first_window` keyframes, and then every `bundle.step` keyframes, a
+sliding-window SBA (`BundleProblem`) runs over its last `bundle.window` keyframes with a straight
+cylinder of the a-priori radius fitted to the window's points (eq. 2-6). Gauge: every pose older
+than the window and every pose of the window already solved by a previous window is held
+(`fixed_overlap` limits that to the oldest few), so consecutive windows chain; the first window
+holds its first pose. A section's last keyframes get a final (partial) window when it ends.
+
+Metric scale comes from the radius alone. The section starts at unit scale (one unit per first
+keyframe step); before its first window solve, the whole section is scaled by r / free_radius of
+a cylinder fitted to the window's points with the radius free, and the SBA with the cylinder term
+(tau > 0) then refines the scale. With tau = 0 the first window keeps the distance between its
+first and last poses (so the free-radius rescale is all the metric information there is) and
+later windows inherit the scale through their held poses.
+
+Sections: a keyframe with pose_valid False (tracking lost) starts a new section with no link to the
+previous one. Its first pose is put at the previous keyframe's pose (the camera cannot be far: the
+front end gives up after `frontend.max_lost_frames` untracked frames), so the trajectory stays
+continuous but the motion during the gap is lost; the new section gets its own metric scale from its
+own first window. A section too short for a cylinder fit takes the previous section's mean keyframe
+step as its step length ("scale": "assumed") or stays at unit scale if there is none ("unit").
+Everything is deterministic: no random choices are made here.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from pipemap.backend.bundle import BundleProblem, Observations
+from pipemap.backend.triangulate import triangulate_rays
+from pipemap.camera.base import CameraModel
+from pipemap.config import Settings
+from pipemap.frontend.tracks import Keyframe
+from pipemap.geometry.cylinder import fit_cylinder
+from pipemap.geometry.se3 import world_to_camera
+
+
+@dataclass
+class WindowReport:
+    section: int
+    first: int  # keyframe numbers (inclusive)
+    last: int
+    fixed: int
+    points: int
+    observations: int
+    time_s: float
+    iterations: int
+    rms_px: float
+    cylinder_rms_m: float
+    rescale: float  # the metric rescale applied before this solve (1.0 after the first window)
+    step_scale: float  # mean keyframe step length in the window after the solve over before it
+
+    def to_dict(self) -> dict:
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items()}
+
+
+@dataclass
+class SectionReport:
+    number: int
+    first: int  # keyframe numbers (inclusive)
+    last: int
+    scale: str  # "cylinder" (metric from r), "assumed" (previous section's step length) or "unit"
+    windows: int = 0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class StraightResult:
+    timestamps: np.ndarray  # (N,) of the keyframes
+    indices: np.ndarray  # (N,) image indices
+    poses: np.ndarray  # (N, 4, 4) T_wc, metres
+    points: np.ndarray  # (M, 3) live scene points
+    point_tracks: np.ndarray  # (M,) their track ids
+    sections: list[SectionReport]
+    windows: list[WindowReport]
+    seconds: dict = field(default_factory=dict)  # "relative" (scale + triangulation), "windows"
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values, kind="stable")
+    cw = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cw, 0.5 * cw[-1])])
+
+
+class StraightVO:
+    """Feed keyframes in order with `add`; `finish` closes the last section and returns the result."""
+
+    def __init__(self, camera: CameraModel, radius: float, settings: Settings | None = None):
+        self.camera = camera
+        self.radius = float(radius)
+        if not (np.isfinite(self.radius) and self.radius > 0):
+            raise ValueError(f"the pipe radius must be positive, got {radius!r}")
+        settings = settings or Settings()
+        self.b = settings.bundle
+        self.s = settings.straight_vo
+        self.keyframes: list[Keyframe] = []
+        self.R: list[np.ndarray] = []  # R_wc per keyframe
+        self.c: list[np.ndarray] = []  # camera centre per keyframe
+        self.active: list[np.ndarray] = []  # per keyframe: observation not rejected as an outlier
+        self.sections: list[SectionReport] = []
+        self.windows: list[WindowReport] = []
+        self._X = np.zeros((0, 3))
+        self._has = np.zeros(0, bool)
+        self._dead = np.zeros(0, bool)
+        self._first_kf = np.zeros(0, np.int64)
+        self._solved_until = -1  # keyframes up to this number were solved by a window of the current section
+        self._metric = False
+        self._first_tid = 0
+        self._t_rel = 0.0
+        self._t_win = 0.0
+
+    # -- storage --------------------------------------------------------------------------
+
+    def _grow(self, max_tid: int) -> None:
+        n = len(self._has)
+        if max_tid < n:
+            return
+        m = max(max_tid + 1, 2 * n, 1024)
+        X = np.full((m, 3), np.nan)
+        X[:n] = self._X
+        has, dead, first = np.zeros(m, bool), np.zeros(m, bool), np.full(m, -1, np.int64)
+        has[:n], dead[:n], first[:n] = self._has, self._dead, self._first_kf
+        self._X, self._has, self._dead, self._first_kf = X, has, dead, first
+
+    @property
+    def section(self) -> SectionReport:
+        return self.sections[-1]
+
+    # -- per keyframe ---------------------------------------------------------------------
+
+    def add(self, kf: Keyframe) -> None:
+        t0 = time.perf_counter()
+        if kf.number != len(self.keyframes):
+            raise ValueError(f"keyframes must come in order: expected number {len(self.keyframes)}, got {kf.number}")
+        tids = np.asarray(kf.track_ids, np.int64)
+        if len(tids):
+            self._grow(int(tids.max()))
+        k = len(self.keyframes)
+        new_section = k == 0 or not kf.pose_valid
+        if new_section:
+            if k > 0:
+                self._close_section()
+            R, c = (np.eye(3), np.zeros(3)) if k == 0 else (self.R[-1].copy(), self.c[-1].copy())
+            self.sections.append(SectionReport(len(self.sections), k, k, "unit"))
+            self._solved_until, self._metric = -1, False
+            self._first_tid = int(tids.min()) if len(tids) else len(self._has)
+        else:
+            s = self._relative_scale(kf)
+            Rp, cp = self.R[-1], self.c[-1]
+            R = Rp @ kf.R.T
+            c = cp - R @ (kf.t * s)
+        self.keyframes.append(kf)
+        self.R.append(R)
+        self.c.append(c)
+        self.active.append(np.ones(len(tids), bool))
+        fresh = self._first_kf[tids] < 0
+        self._first_kf[tids[fresh]] = k
+        self.section.last = k
+        if not new_section:
+            self._triangulate(kf)
+        self._t_rel += time.perf_counter() - t0
+        n = k - self.section.first + 1
+        if n == self.s.first_window or (n > self.s.first_window and n % self.b.step == 0):
+            self._window()
+
+    def _relative_scale(self, kf: Keyframe) -> float:
+        """Length of the new step, from tracks that already have 3D points (see the module docstring)."""
+        prev = self.keyframes[-1]
+        sec = self.section
+        last_step = np.linalg.norm(self.c[-1] - self.c[-2]) if len(self.c) - 1 > sec.first else 1.0
+        cur = np.flatnonzero(kf.inliers)
+        _, ip, ic = np.intersect1d(prev.track_ids, kf.track_ids[cur], assume_unique=True, return_indices=True)
+        ic = cur[ic]
+        tid = kf.track_ids[ic]
+        ok = self._has[tid] & self.active[-1][ip] & (tid >= self._first_tid)
+        ip, ic, tid = ip[ok], ic[ok], tid[ok]
+        if len(tid) < self.s.min_scale_points:
+            return float(last_step)
+        Xp = world_to_camera(self.R[-1], self.c[-1], self._X[tid])
+        a = prev.bearings[ip] @ kf.R.T  # previous bearings in the new camera's axes
+        b = kf.bearings[ic]
+        # Depth along the previous bearing of the unit-baseline two-view midpoint.
+        ab = np.sum(a * b, 1)
+        at, bt = a @ kf.t, b @ kf.t
+        den = 1.0 - ab * ab
+        lam_i = (ab * bt - at) / np.where(den > 1e-12, den, 1e-12)
+        lam_j = (bt - ab * at) / np.where(den > 1e-12, den, 1e-12)
+        parallax = np.arccos(np.clip(ab, -1.0, 1.0))
+        depth = np.einsum("ki,ki->k", Xp, prev.bearings[ip])
+        use = (lam_i > 0) & (lam_j > 0) & (depth > 0) & (parallax > np.radians(self.s.scale_min_parallax_deg))
+        if use.sum() < self.s.min_scale_points:
+            return float(last_step)
+        return _weighted_median(depth[use] / lam_i[use], parallax[use] ** 2)
+
+    def _observations(self, tids: np.ndarray, lo: int, hi: int):
+        """Active observations of the sorted tracks `tids` in keyframes lo..hi:
+        (keyframe, position in tids, world ray direction)."""
+        kfs, which, dirs = [], [], []
+        for k in range(lo, hi + 1):
+            kf = self.keyframes[k]
+            _, it, ik = np.intersect1d(tids, kf.track_ids, assume_unique=True, return_indices=True)
+            ok = self.active[k][ik]
+            kfs.append(np.full(int(ok.sum()), k))
+            which.append(it[ok])
+            dirs.append(kf.bearings[ik[ok]] @ self.R[k].T)
+        return np.concatenate(kfs), np.concatenate(which), np.concatenate(dirs)
+
+    def _triangulate(self, kf: Keyframe) -> None:
+        tids = kf.track_ids[kf.inliers]
+        tids = np.sort(tids[~self._has[tids] & ~self._dead[tids] & (tids >= self._first_tid)])
+        if not len(tids):
+            return
+        lo = max(int(self._first_kf[tids].min()), self.section.first, kf.number - self.b.window + 1)
+        ks, which, d = self._observations(tids, lo, kf.number)
+        c = np.stack(self.c)[ks] if len(ks) else np.zeros((0, 3))
+        tri = triangulate_rays(c, d, which, len(tids), min_parallax_deg=self.s.min_parallax_deg)
+        good = tri.valid & (tri.max_error_deg <= self.s.max_ray_error_deg)
+        self._X[tids[good]] = tri.points[good]
+        self._has[tids[good]] = True
+
+    # -- windows ------------------------------------------------------------------------
+
+    def _window(self) -> None:
+        t0 = time.perf_counter()
+        try:
+            self._solve_window()
+        finally:
+            self._t_win += time.perf_counter() - t0
+
+    def _section_points(self) -> np.ndarray:
+        tids = np.flatnonzero(self._has)
+        return tids[tids >= self._first_tid]
+
+    def _rescale_section(self, f: float) -> None:
+        sec = self.section
+        o = self.c[sec.first].copy()
+        for k in range(sec.first, sec.last + 1):
+            self.c[k] = o + f * (self.c[k] - o)
+        tids = self._section_points()
+        self._X[tids] = o + f * (self._X[tids] - o)
+
+    def _solve_window(self) -> None:
+        sec = self.section
+        last = sec.last
+        first = max(sec.first, last - self.b.window + 1)
+        n = last - first + 1
+        if n < self.s.min_window_keyframes or last <= self._solved_until:
+            return
+        # Observations of live points in the window; a point needs two of them.
+        ks, rows, tids, pixels = [], [], [], []
+        for k in range(first, last + 1):
+            kf = self.keyframes[k]
+            r = np.flatnonzero(self.active[k] & self._has[kf.track_ids] & (kf.track_ids >= self._first_tid))
+            ks.append(np.full(len(r), k))
+            rows.append(r)
+            tids.append(kf.track_ids[r])
+            pixels.append(kf.keypoints[r])
+        ks, rows, tids, pixels = (np.concatenate(a) for a in (ks, rows, tids, pixels))
+        uniq, inv, counts = np.unique(tids, return_inverse=True, return_counts=True)
+        keep = counts[inv] >= 2
+        ks, rows, tids, pixels = ks[keep], rows[keep], tids[keep], pixels[keep]
+        uniq, inv = np.unique(tids, return_inverse=True)
+        if len(uniq) < self.s.min_window_points:
+            return
+        R = np.stack(self.R[first:last + 1])
+        c = np.stack(self.c[first:last + 1])
+        direction = c[-1] - c[0]
+        if np.linalg.norm(direction) <= 0:
+            direction = R[0][:, 2]
+        rescale = 1.0
+        huber = self.b.huber_m
+        if not self._metric:
+            # Unknown units: put the Huber threshold at the same fraction of the (rough) radius.
+            u = direction / np.linalg.norm(direction)
+            v = self._X[uniq] - c[0]
+            rough = float(np.median(np.linalg.norm(v - (v @ u)[:, None] * u, axis=1)))
+            huber *= rough / self.radius
+        try:
+            fit = fit_cylinder(self._X[uniq], self.radius, reference=(R[0], c[0]), direction=direction, huber=huber)
+            if not self._metric:
+                rescale = self.radius / fit.free_radius
+                self._rescale_section(rescale)
+                c = np.stack(self.c[first:last + 1])
+                fit = fit_cylinder(self._X[uniq], self.radius, reference=(R[0], c[0]), direction=c[-1] - c[0],
+                                   huber=self.b.huber_m)
+        except (ValueError, np.linalg.LinAlgError):
+            return
+        numbers = np.arange(first, last + 1)
+        if self._solved_until < first:
+            fixed = [0]
+        else:
+            fixed = np.flatnonzero(numbers <= self._solved_until)
+            if self.s.fixed_overlap is not None:
+                fixed = fixed[: max(self.s.fixed_overlap, 1)]
+            fixed = fixed.tolist()
+        kwargs = dict(fixed_poses=fixed, cylinder=fit, cylinder_reference=0, cylinder_points=fit.inliers)
+        if self.b.tau <= 0 and len(fixed) < 2:
+            kwargs["fixed_distance"] = (0, n - 1)
+        obs = Observations(ks - first, inv, pixels)
+        before = np.mean(np.linalg.norm(np.diff(c, axis=0), axis=1))
+        res = BundleProblem.from_settings(self.camera, (R, c), self._X[uniq], obs, self.b, **kwargs).solve()
+        for i, k in enumerate(numbers):
+            self.R[k] = res.poses[i, :3, :3].copy()
+            self.c[k] = res.poses[i, :3, 3].copy()
+        good = res.point_inliers & np.all(np.isfinite(res.points), axis=1)
+        self._X[uniq[good]] = res.points[good]
+        self._has[uniq[~good]] = False
+        self._dead[uniq[~good]] = True
+        out = ~res.inliers
+        for k, r in zip(ks[out], rows[out]):
+            self.active[k][r] = False
+        after = np.mean(np.linalg.norm(np.diff(res.poses[:, :3, 3], axis=0), axis=1))
+        self._solved_until = last
+        self._metric = True
+        sec.scale = "cylinder"
+        sec.windows += 1
+        self.windows.append(WindowReport(sec.number, int(first), int(last), len(fixed), len(uniq), len(obs),
+                                         float(res.time_s), int(res.iterations), float(res.rms_px),
+                                         float(res.cylinder_rms_m), float(rescale), float(after / before)))
+
+    def _close_section(self) -> None:
+        """The final (partial) window; a fallback scale for a section with no window at all."""
+        self._window()
+        sec = self.section
+        if self._metric or sec.last == sec.first:
+            if sec.last == sec.first and not self._metric:
+                sec.scale = "none needed"
+            return
+        metric = [s for s in self.sections[:-1] if s.scale == "cylinder" and s.last > s.first]
+        if metric:
+            p = metric[-1]
+            ref = np.mean(np.linalg.norm(np.diff(np.stack(self.c[p.first:p.last + 1]), axis=0), axis=1))
+            own = np.mean(np.linalg.norm(np.diff(np.stack(self.c[sec.first:sec.last + 1]), axis=0), axis=1))
+            if own > 0:
+                self._rescale_section(ref / own)
+                sec.scale = "assumed"
+
+    def finish(self) -> StraightResult:
+        if self.keyframes:
+            self._close_section()
+        poses = np.tile(np.eye(4), (len(self.keyframes), 1, 1))
+        if self.keyframes:
+            poses[:, :3, :3] = np.stack(self.R)
+            poses[:, :3, 3] = np.stack(self.c)
+        tids = np.flatnonzero(self._has)
+        return StraightResult(
+            np.array([k.timestamp for k in self.keyframes], float),
+            np.array([k.index for k in self.keyframes], np.int64),
+            poses, self._X[tids].copy(), tids, list(self.sections), list(self.windows),
+            {"relative": self._t_rel, "windows": self._t_win})
+
+
+def run_straight(keyframes, camera: CameraModel, radius: float, settings: Settings | None = None) -> StraightResult:
+    """Run the straight-section VO over a list (or stream) of keyframes."""
+    vo = StraightVO(camera, radius, settings)
+    for kf in keyframes:
+        vo.add(kf)
+    return vo.finish()
+
+
+__all__ = ["StraightVO", "StraightResult", "SectionReport", "WindowReport", "run_straight"]

@@ -1,0 +1,164 @@
+"""Triangulation on bearings and the straight-section metric VO (fisheye paper III-C).
+
+The VO is judged on a small render of the fisheye-straight preset (640 x 480, 80 frames 1.5 cm
+apart: ~1.2 m, ~40 keyframes), tracked once per module; no scale alignment anywhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from pipemap.backend.straight import run_straight
+from pipemap.backend.triangulate import triangulate_rays, triangulate_two_view
+from pipemap.config import load_settings
+from pipemap.dataset import load_dataset
+from pipemap.frontend import track_frames
+from pipemap.geometry.rotations import exp_so3
+
+# ---------------------------------------------------------------- triangulation
+
+
+def _rig(n_points=200, seed=0):
+    rng = np.random.default_rng(seed)
+    # Points on a pipe wall around the z axis, cameras moving along it, bearings up to ~95 deg.
+    phi = rng.uniform(-np.pi, np.pi, n_points)
+    z = rng.uniform(-0.05, 0.6, n_points)
+    X = np.stack([0.2 * np.cos(phi), 0.2 * np.sin(phi), z], -1)
+    R = exp_so3(rng.normal(0, 0.05, (4, 3)))
+    c = np.stack([np.full(4, 0.01), np.full(4, -0.04), 0.03 * np.arange(4)], -1)
+    return X, R, c
+
+
+def test_triangulate_rays_exact_multi_view():
+    X, R, c = _rig()
+    cams = np.repeat(np.arange(4), len(X))
+    pts = np.tile(np.arange(len(X)), 4)
+    d = X[pts] - c[cams]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    # Varying track lengths: drop the first observations of half the points.
+    keep = ~((cams == 0) & (pts % 2 == 0))
+    tri = triangulate_rays(c[cams][keep], d[keep], pts[keep], len(X), min_parallax_deg=0.5)
+    assert tri.valid.all()
+    assert np.abs(tri.points - X).max() < 1e-9
+    assert tri.max_error_deg.max() < 1e-6
+
+
+def test_triangulate_two_view_exact_beyond_90_deg():
+    X, R, c = _rig(seed=1)
+    # Camera frames: camera 0 at the origin looking along +z, camera 1 0.03 m ahead and rotated.
+    Rj = exp_so3(np.array([0.02, -0.03, 0.05]))
+    cj = np.array([0.005, 0.0, 0.03])
+    bi = X / np.linalg.norm(X, axis=1, keepdims=True)
+    Xj = (X - cj) @ Rj  # Rj is camera j's R_wc in camera i's frame
+    bj = Xj / np.linalg.norm(Xj, axis=1, keepdims=True)
+    assert (bi[:, 2] < 0).any()  # some bearings lie behind the image plane
+    R, t = Rj.T, -Rj.T @ cj  # X_j = R X_i + t
+    tri = triangulate_two_view(R, t, bi, bj, min_parallax_deg=0.1)
+    good = tri.valid
+    assert good.mean() > 0.9
+    assert np.abs(tri.points[good] - X[good]).max() < 1e-9
+
+
+def test_triangulate_rejects_behind_and_low_parallax():
+    c = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0, 0], [0.1, 0, 0], [0, 0, 0], [0.1, 0, 0]], float)
+    X_front = np.array([0.05, 0.0, 1.0])
+    X_far = np.array([0.05, 0.0, 100.0])  # 0.06 deg of parallax
+    d_front = X_front - c[:2]
+    # Rays pointing away from where they meet: the intersection lies behind both cameras.
+    d_behind = -(np.array([0.05, 0.0, 1.0]) - c[2:4])
+    d_far = X_far - c[4:]
+    d = np.concatenate([d_front, d_behind, d_far])
+    tri = triangulate_rays(c, d, np.array([0, 0, 1, 1, 2, 2]), 3, min_parallax_deg=1.0)
+    assert tri.valid[0] and np.allclose(tri.points[0], X_front, atol=1e-9)
+    assert not tri.in_front[1] and not tri.valid[1]
+    assert tri.in_front[2] and tri.parallax_deg[2] < 0.1 and not tri.valid[2]
+    # A single ray is not a point.
+    one = triangulate_rays(c[:1], d[:1], np.array([0]), 2)
+    assert not one.valid.any()
+
+
+# ---------------------------------------------------------------- the VO on a render
+
+SIM = dict(preset="fisheye-straight", width=640, height=480, frames=80, seed=0, spacing_m=0.015)
+
+
+@pytest.fixture(scope="module")
+def straight_run(tmp_path_factory):
+    from pipemap.sim.simulate import simulate
+
+    kw = dict(SIM)
+    root = simulate(kw.pop("preset"), tmp_path_factory.mktemp("straight") / "data", **kw)
+    ds = load_dataset(root)
+    settings = load_settings()
+    keyframes = list(track_frames(ds.frames(), ds.camera, settings.frontend, settings.seed))
+    return ds, keyframes
+
+
+def _distance_error(ds, result):
+    """Signed error (m) of the distance travelled along the pipe axis, first -> last keyframe, no alignment."""
+    from pipemap.trajectory import read_tum
+
+    gt = read_tum(ds.ground_truth_dir / "poses.tum")
+    p = gt.positions[result.indices]
+    axis = p[-1] - p[0]
+    axis /= np.linalg.norm(axis)
+    true = float((p[-1] - p[0]) @ axis)
+    est = float(np.linalg.norm(result.poses[-1, :3, 3] - result.poses[0, :3, 3]))
+    return est - true, true
+
+
+def test_straight_vo_metric_distance(straight_run):
+    ds, keyframes = straight_run
+    result = run_straight(keyframes, ds.camera, ds.radius_m, load_settings())
+    err, true = _distance_error(ds, result)
+    assert true > 1.0
+    # Measured: -0.05 % (0.5 mm over 1.0 m); 0.5 % leaves room for platform differences.
+    assert abs(err) / true < 0.005, (err, true)
+    assert len(result.sections) == 1 and result.sections[0].scale == "cylinder"
+    assert len(result.windows) >= 2
+    # (The points are judged against the true wall in tests/test_pipeline.py.)
+    assert all(w.rms_px < 1.0 for w in result.windows)
+
+
+def test_straight_vo_deterministic(straight_run):
+    ds, keyframes = straight_run
+    a = run_straight(keyframes, ds.camera, ds.radius_m, load_settings())
+    b = run_straight(keyframes, ds.camera, ds.radius_m, load_settings())
+    assert np.array_equal(a.poses, b.poses)
+    assert np.array_equal(a.points, b.points)
+
+
+def test_cylinder_term_fixes_scale(straight_run):
+    """tau = 0: only the first window's free-radius rescale gives metres; the SBA keeps the distance
+    between the window's end poses, and the scale is measurably worse (-0.45 % vs -0.05 % measured)."""
+    ds, keyframes = straight_run
+    with_cyl = run_straight(keyframes, ds.camera, ds.radius_m, load_settings())
+    without = run_straight(keyframes, ds.camera, ds.radius_m, load_settings(overrides=["bundle.tau=0"]))
+    e1, true = _distance_error(ds, with_cyl)
+    e0, _ = _distance_error(ds, without)
+    assert abs(e0) > 2 * abs(e1), (e0, e1)
+
+
+def test_lost_tracking_starts_new_section(straight_run):
+    """A keyframe with pose_valid False mid-sequence: two sections, each metric, no crash."""
+    ds, keyframes = straight_run
+    cut = 24
+    offset = 10_000_000  # every later track is new, as the tracker does after losing track
+    kfs = list(keyframes[:cut])
+    k0 = keyframes[cut]
+    kfs.append(replace(k0, track_ids=k0.track_ids + offset, inliers=np.zeros(len(k0), bool), R=np.eye(3),
+                       t=np.zeros(3), pose_valid=False))
+    kfs += [replace(k, track_ids=k.track_ids + offset) for k in keyframes[cut + 1:]]
+    result = run_straight(kfs, ds.camera, ds.radius_m, load_settings(overrides=["straight_vo.first_window=10"]))
+    assert [(s.first, s.last) for s in result.sections] == [(0, cut - 1), (cut, len(kfs) - 1)]
+    assert all(s.scale == "cylinder" for s in result.sections)
+    assert np.all(np.isfinite(result.poses))
+    # The second section starts where the first ended (the gap's motion is not recovered).
+    assert np.allclose(result.poses[cut, :3, 3], result.poses[cut - 1, :3, 3])
+    steps = np.linalg.norm(np.diff(result.poses[:, :3, 3], axis=0), axis=1)
+    # Both sections are metric: their keyframe steps agree.
+    s1, s2 = np.median(steps[: cut - 1]), np.median(steps[cut:])
+    assert abs(s2 / s1 - 1) < 0.2
