@@ -1,8 +1,10 @@
 """`pipemap run`: the stages in order, writing the result folder of spec/formats.md.
 
-For now: front end (fisheye feature tracking) -> straight-section VO (the whole sequence is one
-straight section, split only where tracking is lost) -> trajectory.tum, sparse.ply, frames.csv,
-run.json. The keyframes stream from the front end into the back end as they are made.
+Each frame is classified straight / junction (fisheye paper III-B) and tracked (III-A); the
+keyframes stream into the straight-section VO (III-C) as they are made. T-intersections are not
+modelled yet: the VO treats the run as straight sections split only where tracking is lost, and
+the junction labels and clusters are recorded in frames.csv and run.json. Writes
+trajectory.tum, sparse.ply, frames.csv and run.json.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from pipemap.backend.straight import StraightResult, StraightVO
 from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.frontend import FeatureTracker
+from pipemap.frontend.classification import SequenceClass, SequenceClassifier
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.trajectory import Trajectory, write_tum
@@ -33,14 +36,17 @@ class PipelineResult:
 
 
 def write_results(folder: Path, dataset: Dataset, image_count: int, result: StraightResult, settings: Settings,
-                  seconds: dict) -> None:
+                  seconds: dict, classes: SequenceClass | None = None) -> None:
     """trajectory.tum, sparse.ply, frames.csv and run.json into `folder`."""
     t0 = time.perf_counter()
     traj = Trajectory.from_matrices(result.indices / dataset.fps, result.poses)
     write_tum(folder / "trajectory.tum", traj,
               header="pipemap straight-section VO: keyframe T_wc in metres, world = first keyframe's camera")
     write_sparse_ply(folder / "sparse.ply", result.points)
-    write_frames_csv(folder / "frames.csv", image_count, result.indices.tolist())
+    labels = None
+    if classes is not None and len(classes.indices) == image_count:
+        labels = classes.labels
+    write_frames_csv(folder / "frames.csv", image_count, result.indices.tolist(), labels)
     seconds = dict(seconds)
     seconds["write"] = time.perf_counter() - t0
     from pipemap import __version__
@@ -61,6 +67,7 @@ def write_results(folder: Path, dataset: Dataset, image_count: int, result: Stra
                          "tracking was lost: each section is metric on its own (its own cylinder scale); a new "
                          "section starts at the previous keyframe's pose, the motion during the gap is not recovered"),
         "windows": [w.to_dict() for w in windows],
+        "junction_clusters": None if classes is None else [list(c) for c in classes.clusters],
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
     }
     atomic_write_text(folder / "run.json", json.dumps(run, indent=2) + "\n")
@@ -90,7 +97,12 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
                 vo.add(kf)
             backend += time.perf_counter() - t
 
+        classifier = SequenceClassifier(dataset.camera, settings.classification)
+        classify_s = 0.0
         for frame in dataset.frames():
+            t = time.perf_counter()
+            classifier.add(frame)
+            classify_s += time.perf_counter() - t
             feed(tracker.process(frame))
             done += 1
             if progress is not None:
@@ -99,7 +111,8 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
         t = time.perf_counter()
         result = vo.finish()
         backend += time.perf_counter() - t
-        seconds["frontend"] = time.perf_counter() - start - backend
+        seconds["frontend"] = time.perf_counter() - start - backend - classify_s
+        seconds["classification"] = classify_s
         seconds["straight_relative"] = result.seconds["relative"]
         seconds["straight_windows"] = result.seconds["windows"]
         seconds["total"] = time.perf_counter() - start
@@ -107,7 +120,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
             from pipemap.errors import PipemapError
 
             raise PipemapError("no images could be read", dataset.root)
-        write_results(tmp, dataset, done, result, settings, seconds)
+        write_results(tmp, dataset, done, result, settings, seconds, classifier.result())
     return PipelineResult(Path(out_dir), done, len(result.indices), result, seconds)
 
 

@@ -230,6 +230,29 @@ def junction_clusters(indices, junction) -> list[tuple[int, int]]:
     return [(int(idx[a]), int(idx[b - 1])) for a, b in zip(starts, stops)]
 
 
+class SequenceClassifier:
+    """Streaming form of classify_sequence: `add` each frame in time order, then `result`."""
+
+    def __init__(self, camera: CameraModel, settings: ClassificationSettings | None = None):
+        self.camera, self.s = camera, settings or ClassificationSettings()
+        self.indices: list[int] = []
+        self.ratios: list[float] = []
+        self.raw: list[bool] = []
+
+    def add(self, frame: Frame) -> FrameClass:
+        fc = classify_frame(frame.image, self.camera, self.s)
+        self.indices.append(frame.index)
+        self.ratios.append(fc.ratio)
+        self.raw.append(fc.is_junction)
+        return fc
+
+    def result(self) -> SequenceClass:
+        indices = np.asarray(self.indices, dtype=np.int64)
+        raw = np.asarray(self.raw, bool)
+        filtered = temporal_filter(raw, self.s.min_cluster_keyframes)
+        return SequenceClass(indices, np.asarray(self.ratios, float), raw, filtered, junction_clusters(indices, filtered))
+
+
 def classify_sequence(frames: Dataset | Iterable[Frame], camera: CameraModel | None = None,
                       settings: ClassificationSettings | None = None,
                       progress: Callable[[int], None] | None = None) -> SequenceClass:
@@ -241,15 +264,9 @@ def classify_sequence(frames: Dataset | Iterable[Frame], camera: CameraModel | N
         frames = frames.frames()
     if camera is None:
         raise ValueError("classify_sequence needs the camera")
-    indices, ratios, raw = [], [], []
+    classifier = SequenceClassifier(camera, s)
     for frame in frames:
-        fc = classify_frame(frame.image, camera, s)
-        indices.append(frame.index)
-        ratios.append(fc.ratio)
-        raw.append(fc.is_junction)
+        classifier.add(frame)
         if progress is not None:
-            progress(len(raw))
-    indices = np.asarray(indices, dtype=np.int64)
-    raw = np.asarray(raw, bool)
-    filtered = temporal_filter(raw, s.min_cluster_keyframes)
-    return SequenceClass(indices, np.asarray(ratios, float), raw, filtered, junction_clusters(indices, filtered))
+            progress(len(classifier.raw))
+    return classifier.result()
