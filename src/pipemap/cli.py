@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import glob as globmod
 import os
@@ -63,6 +64,23 @@ def expand_glob(pattern: str) -> list[Path]:
     if not paths:
         raise PipemapError("no files match", pattern)
     return paths
+
+
+@contextlib.contextmanager
+def frame_progress(label: str, keyframes: bool = False):
+    """A transient progress bar over frames on stderr; yields progress(done, total[, keyframes])."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    columns = [TextColumn(label), BarColumn(), MofNCompleteColumn()]
+    if keyframes:
+        columns.append(TextColumn("{task.fields[kf]} keyframes"))
+    with Progress(*columns, TimeRemainingColumn(), console=err_console, transient=True) as bar:
+        task = bar.add_task("frames", total=None, kf=0)
+
+        def progress(done: int, total: int, kf: int = 0) -> None:
+            bar.update(task, completed=done, total=total, kf=kf)
+
+        yield progress
 
 
 def version_callback(value: bool) -> None:
@@ -128,17 +146,9 @@ def simulate(
     workers: Optional[int] = typer.Option(None, "--workers", help="Rendering processes (default: one per core)."),
 ) -> None:
     """Render a synthetic dataset with exact ground truth (dataset.yaml, images/, ground_truth/)."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     from pipemap.sim.simulate import simulate as render_dataset
 
-    with Progress(TextColumn(f"rendering {preset}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                  console=err_console, transient=True) as bar:
-        task = bar.add_task("frames", total=None)
-
-        def progress(i: int, n: int) -> None:
-            bar.update(task, completed=i, total=n)
-
+    with frame_progress(f"rendering {preset}") as progress:
         render_dataset(preset, out, width=width, height=height, frames=frames, seed=seed, route=route,
                        progress=progress, spacing_m=spacing, motion_blur=motion_blur, texture=texture,
                        workers=workers)
@@ -258,18 +268,10 @@ def track(
     Writes frames.csv, trajectory.tum (rotations exact, one unit of translation per keyframe
     step), tracks.csv and run.json.
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     from pipemap.frontend import run_tracking
 
     settings = _load_settings(config, set_)
-    with Progress(TextColumn("tracking"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[kf]} keyframes"),
-                  TimeRemainingColumn(), console=err_console, transient=True) as bar:
-        task = bar.add_task("frames", total=None, kf=0)
-
-        def progress(done: int, total: int, keyframes: int) -> None:
-            bar.update(task, completed=done, total=total, kf=keyframes)
-
+    with frame_progress("tracking", keyframes=True) as progress:
         result = run_tracking(dataset, out, settings, progress=progress)
     console.print(f"{result.image_count} frames, {len(result.keyframes)} keyframes, "
                   f"{result.frames_per_second:.1f} frames/s -> {out}")
@@ -285,8 +287,6 @@ def run_command(
 ) -> None:
     """Map a fisheye dataset: feature tracking, then metric straight-section VO with cylinder-regularised
     sliding-window SBA. Writes trajectory.tum, sparse.ply, frames.csv and run.json."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     from pipemap.camera import PinholeCamera
     from pipemap.dataset import load_dataset
     from pipemap.pipeline import run_pipeline
@@ -295,13 +295,7 @@ def run_command(
     if isinstance(load_dataset(dataset).camera, PinholeCamera):
         raise PipemapError("the fisheye pipeline needs a fisheye camera (polynomial or kannala_brandt); "
                            "this dataset's camera is pinhole", dataset)
-    with Progress(TextColumn("mapping"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[kf]} keyframes"),
-                  TimeRemainingColumn(), console=err_console, transient=True) as bar:
-        task = bar.add_task("frames", total=None, kf=0)
-
-        def progress(done: int, total: int, keyframes: int) -> None:
-            bar.update(task, completed=done, total=total, kf=keyframes)
-
+    with frame_progress("mapping", keyframes=True) as progress:
         result = run_pipeline(dataset, out, settings, progress=progress)
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())
     console.print(f"{result.image_count} frames, {result.keyframe_count} keyframes, "

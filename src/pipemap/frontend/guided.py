@@ -90,46 +90,6 @@ def guided_zncc(
         positions[k] = (cu - search_px + c + dc, cv - search_px + r + dr)
         scores[k] = best
     return found, positions, scores
-    image_i = np.ascontiguousarray(image_i, dtype=np.float32)
-    image_j = np.ascontiguousarray(image_j, dtype=np.float32)
-    h, w = image_j.shape
-    half = patch // 2
-    reach = search_px + half
-    normals = (bearings_i @ E.T).astype(np.float32)  # eta_j . (E eta_i): the epipolar plane of each point
-    centres = np.rint(predicted_j).astype(int)
-    inside = (
-        (centres[:, 0] - reach >= 0) & (centres[:, 0] + reach < w) & (centres[:, 1] - reach >= 0) & (centres[:, 1] + reach < h)
-    )
-    last = 2 * search_px
-    todo = np.nonzero(inside)[0]
-    if todo.size == 0:
-        return found, positions, scores
-    # Epipolar regions of all windows at once: bearings of every window pixel against each plane.
-    offsets = np.arange(-search_px, search_px + 1)
-    rows = centres[todo, 1, None, None] + offsets[None, :, None]
-    cols = centres[todo, 0, None, None] + offsets[None, None, :]
-    algebraic = np.einsum("mrck,mk->mrc", bearing_map[rows, cols], normals[todo])
-    allowed_all = (np.abs(algebraic) < epipolar_threshold) & valid_j[rows, cols]
-    for n, k in enumerate(todo):
-        allowed = allowed_all[n]
-        if not allowed.any():
-            continue
-        template = cv2.getRectSubPix(image_i, (patch, patch), (float(points_i[k, 0]), float(points_i[k, 1])))
-        cu, cv = centres[k]
-        window = image_j[cv - reach : cv + reach + 1, cu - reach : cu + reach + 1]
-        score = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
-        masked = np.where(allowed, score, -1.0)
-        r, c = divmod(int(np.argmax(masked)), masked.shape[1])
-        best = float(masked[r, c])
-        if not best >= zncc_min or r == 0 or c == 0 or r == last or c == last:
-            continue
-        # The fit uses the unmasked scores: the band is a few pixels wide and would flatten the peak.
-        dr = _vertex(float(score[r - 1, c]), best, float(score[r + 1, c]))
-        dc = _vertex(float(score[r, c - 1]), best, float(score[r, c + 1]))
-        found[k] = True
-        positions[k] = (cu - search_px + c + dc, cv - search_px + r + dr)
-        scores[k] = best
-    return found, positions, scores
 
 
 def _vertex(left: float, centre: float, right: float) -> float:
