@@ -282,19 +282,36 @@ def track(
 def run_command(
     dataset: Path = typer.Argument(..., help="Dataset folder or its dataset.yaml."),
     out: Path = typer.Option(..., "--out", help="Result folder to create (must not exist or be empty)."),
+    method: str = typer.Option("auto", "--method", help="auto | fisheye | dense-full-search | dense-lk | dense-hybrid."),
     config: Optional[Path] = CONFIG_OPTION,
     set_: List[str] = SET_OPTION,
 ) -> None:
-    """Map a fisheye dataset: feature tracking, then metric straight-section VO with cylinder-regularised
-    sliding-window SBA. Writes trajectory.tum, sparse.ply, frames.csv and run.json."""
+    """Map a dataset and write trajectory.tum, frames.csv, run.json (and sparse.ply, or unrolled/).
+
+    fisheye (the default for fisheye cameras): feature tracking, straight/junction labels, metric
+    straight-section VO with cylinder-regularised sliding-window SBA. dense-* (the default
+    dense-hybrid for perspective cameras looking at the wall of a straight pipe, the 2010 report):
+    image registration by full search, Lucas-Kanade or both, scaled by the pixels-per-metre
+    reference (set dense.camera_offset_m or dense.pixels_per_metre)."""
     from pipemap.camera import PinholeCamera
     from pipemap.dataset import load_dataset
     from pipemap.pipeline import run_pipeline
+    from pipemap.straight import DENSE_METHODS, run_dense
 
     settings = _load_settings(config, set_)
-    if isinstance(load_dataset(dataset).camera, PinholeCamera):
+    perspective = isinstance(load_dataset(dataset).camera, PinholeCamera)
+    if method == "auto":
+        method = "dense-hybrid" if perspective else "fisheye"
+    if method in DENSE_METHODS:
+        with frame_progress(method) as progress:
+            dense = run_dense(dataset, out, settings, method, progress=progress)
+        console.print(f"{len(dense.indices)} frames registered ({method}) -> {out}")
+        return
+    if method != "fisheye":
+        raise PipemapError(f"unknown method {method!r} (expected auto, fisheye, {', '.join(DENSE_METHODS)})", "--method")
+    if perspective:
         raise PipemapError("the fisheye pipeline needs a fisheye camera (polynomial or kannala_brandt); "
-                           "this dataset's camera is pinhole", dataset)
+                           "this dataset's camera is pinhole: use a dense method", dataset)
     with frame_progress("mapping", keyframes=True) as progress:
         result = run_pipeline(dataset, out, settings, progress=progress)
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())

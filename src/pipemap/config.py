@@ -121,6 +121,15 @@ class DenseSettings(_Section):
     pyramid_levels: int = Field(3, gt=0, description="hierarchical Lucas-Kanade levels")
     lk_iterations: int = Field(10, gt=0)
     pixels_per_metre: float | None = Field(None, gt=0, description="zeta; None = from calibration, radius, offset")
+    camera_offset_m: float = Field(0.0, description="camera displacement from the pipe axis along its principal axis, "
+                                   "+ towards the viewed wall (zeta from geometry)")
+    search_y_px: int | None = Field(None, ge=0, description="full-search range across the pipe; None = search_px // 2")
+    band_fraction: float = Field(0.5, gt=0, le=1, description="central fraction of the rows that is registered")
+    predict: bool = Field(True, description="search around / start from the previous pair's shift (constant velocity)")
+    lk_tolerance_px: float = Field(1e-3, gt=0, description="Gauss-Newton stops when the update is below this")
+    gain_correct: bool = Field(True, description="divide by the dataset's gain mask when it has one (section 3.2)")
+    stitch_min_shift_px: float = Field(50.0, ge=0, description="frames pasted into the stitched image are at least "
+                                       "this far apart along the pipe (report: 50 px)")
 
 
 class SparseSettings(_Section):

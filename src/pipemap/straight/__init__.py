@@ -1,0 +1,9 @@
+"""The 2010 report's straight-pipe visual odometry: dense registration (section 4)."""
+
+from pipemap.straight.dense import DENSE_METHODS, DenseResult, estimate_shifts, run_dense
+from pipemap.straight.registration import full_search, hybrid, lucas_kanade
+from pipemap.straight.scale import pixels_per_metre
+from pipemap.straight.undistort import Rectifier
+
+__all__ = ["DENSE_METHODS", "DenseResult", "Rectifier", "estimate_shifts", "full_search", "hybrid",
+           "lucas_kanade", "pixels_per_metre", "run_dense"]

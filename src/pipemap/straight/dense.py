@@ -1,0 +1,240 @@
+"""Dense straight-pipe visual odometry (2010 report section 4) and its stitched wall image (section 6).
+
+Per adjacent pair of reduced, undistorted frames the image translation is registered (full
+search, hierarchical Lucas-Kanade, or both), converted to metres with zeta pixels per metre
+(eq. 19) and integrated. World frame = the first camera's frame, which for a camera looking
+perpendicular at the wall with image x along the pipe is a pipe frame: x along the pipe (h), y
+across it, z towards the wall (up for the report's robots). Rotation is assumed constant (R = I,
+the report's model); only the camera centre moves.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+import cv2
+import numpy as np
+
+from pipemap.config import DenseSettings, Settings
+from pipemap.dataset import Dataset, load_dataset
+from pipemap.errors import PipemapError
+from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
+from pipemap.straight.registration import Shift, full_search, hybrid, lucas_kanade
+from pipemap.straight.scale import pixels_per_metre
+from pipemap.straight.undistort import Rectifier
+from pipemap.trajectory import Trajectory, write_tum
+
+DENSE_METHODS = ("dense-full-search", "dense-lk", "dense-hybrid")
+
+
+@dataclass
+class DenseResult:
+    method: str
+    indices: np.ndarray  # (N,) frame indices
+    shifts: np.ndarray  # (N-1, 2) content displacement frame k-1 -> k, rectified pixels
+    scores: np.ndarray  # (N-1,)
+    zeta: float  # pixels per metre
+    zeta_source: str
+    trajectory: Trajectory
+    size: tuple[int, int]  # rectified (width, height)
+    rows: tuple[int, int]
+    seconds: dict = field(default_factory=dict)
+
+
+def band_rows(height: int, fraction: float) -> tuple[int, int]:
+    y0 = int(round(height * (1 - fraction) / 2))
+    return y0, max(y0 + 8, height - y0)
+
+
+def register_pair(I0: np.ndarray, I1: np.ndarray, method: str, dense: DenseSettings,
+                  prior=(0.0, 0.0), rows=None) -> Shift:
+    """The shift of one pair of rectified images by the chosen method."""
+    search = (dense.search_px, dense.search_px // 2 if dense.search_y_px is None else dense.search_y_px)
+    if method == "dense-full-search":
+        return full_search(I0, I1, search, prior, dense.metric, rows)
+    if method == "dense-lk":
+        return lucas_kanade(I0, I1, prior, dense.pyramid_levels, dense.lk_iterations, rows, dense.lk_tolerance_px)
+    if method == "dense-hybrid":
+        return hybrid(I0, I1, search, prior, dense.metric, dense.lk_iterations, rows, dense.lk_tolerance_px)
+    raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})", key="method")
+
+
+def estimate_shifts(images: Iterable[np.ndarray], method: str, dense: DenseSettings,
+                    rows=None, on_frame: Callable[[int, np.ndarray, np.ndarray], None] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Shift of every adjacent pair of rectified images: (N-1, 2) pixels and (N-1,) scores.
+
+    on_frame(k, image, shift) after each image; shift is the pair (k-1, k)'s, zeros for k = 0."""
+    if method not in DENSE_METHODS:
+        raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})", key="method")
+    shifts, scores = [], []
+    prev, prior = None, np.zeros(2)
+    for k, img in enumerate(images):
+        t = np.zeros(2)
+        if prev is not None:
+            s = register_pair(prev, img, method, dense, prior, rows)
+            t = s.t
+            shifts.append(t)
+            scores.append(s.score)
+            if dense.predict and np.all(np.isfinite(t)):
+                prior = t
+        if on_frame is not None:
+            on_frame(k, img, t)
+        prev = img
+    return np.reshape(np.array(shifts, float), (-1, 2)), np.array(scores, float)
+
+
+def integrate(shifts: np.ndarray, zeta: float) -> np.ndarray:
+    """Camera centres (N, 3) in the first camera's frame: the camera moves against the image content."""
+    c = np.concatenate([np.zeros((1, 2)), np.cumsum(shifts, axis=0)])
+    pos = np.zeros((len(c), 3))
+    pos[:, :2] = -c / zeta
+    return pos
+
+
+class Stitcher:
+    """The report's dense stitched image: frames at their integrated pixel offsets, averaged where they overlap."""
+
+    def __init__(self, valid: np.ndarray, min_shift_px: float):
+        self.valid = valid.astype(np.float32)
+        self.min_shift = min_shift_px
+        self.tiles: list[tuple[np.ndarray, np.ndarray]] = []  # (canvas offset u = -C, image)
+        self.offset = np.zeros(2)
+        self._last: np.ndarray | None = None
+
+    def add(self, offset_u: np.ndarray, image: np.ndarray) -> None:
+        if self._last is None or abs(offset_u[0] - self._last[0]) >= self.min_shift:
+            self.tiles.append((np.array(offset_u, float), image))
+            self._last = np.array(offset_u, float)
+
+    def render(self) -> tuple[np.ndarray, np.ndarray]:
+        """(canvas float32, origin): canvas pixel (0, 0) is first-frame pixel `origin` (x, y)."""
+        h, w = self.valid.shape
+        us = np.array([u for u, _ in self.tiles])
+        umin = np.floor(us.min(axis=0))
+        span = np.ceil(us.max(axis=0) - umin).astype(int)
+        acc = np.zeros((h + span[1] + 2, w + span[0] + 2), np.float32)
+        wgt = np.zeros_like(acc)
+        for u, img in self.tiles:  # one paste per tile (tens to hundreds), each vectorised
+            d = u - umin
+            i = np.floor(d).astype(int)
+            frac = d - i
+            M = np.float32([[1, 0, frac[0]], [0, 1, frac[1]]])
+            tile = cv2.warpAffine(img * self.valid, M, (w + 1, h + 1), flags=cv2.INTER_LINEAR)
+            mask = cv2.warpAffine(self.valid, M, (w + 1, h + 1), flags=cv2.INTER_LINEAR)
+            acc[i[1]:i[1] + h + 1, i[0]:i[0] + w + 1] += tile
+            wgt[i[1]:i[1] + h + 1, i[0]:i[0] + w + 1] += mask
+        canvas = np.where(wgt > 0.5, acc / np.maximum(wgt, 1e-6), np.nan)
+        return canvas.astype(np.float32), -umin
+
+
+def _to_png(canvas: np.ndarray) -> bytes:
+    ok = np.isfinite(canvas)
+    lo, hi = (np.percentile(canvas[ok], [0.5, 99.5]) if ok.any() else (0.0, 1.0))
+    img = np.zeros(canvas.shape, np.uint8)
+    img[ok] = np.clip((canvas[ok] - lo) / max(hi - lo, 1e-6) * 254 + 1, 1, 255).astype(np.uint8)
+    good, buf = cv2.imencode(".png", img)
+    if not good:
+        raise PipemapError("could not encode the stitched image")
+    return buf.tobytes()
+
+
+def _frames(dataset: Dataset, rect: Rectifier, counter: list, gain_correct: bool) -> Iterator[np.ndarray]:
+    for frame in dataset.frames(gain_correct=gain_correct):
+        counter.append(frame.index)
+        yield rect(frame.image)
+
+
+def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: str = "dense-hybrid",
+              progress: Callable[[int, int], None] | None = None) -> DenseResult:
+    """Dense VO on a dataset of a straight pipe seen by a perspective camera looking at the wall;
+    writes trajectory.tum, frames.csv, run.json and unrolled/dense_000.{png,json} into `out_dir`
+    atomically. progress(done, total) after every frame."""
+    settings = settings or Settings()
+    dense = settings.dense
+    if method not in DENSE_METHODS:
+        raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})", key="method")
+    dataset = load_dataset(dataset_path)
+    rect = Rectifier(dataset.camera, dense.scale, dataset.yaml_path)
+    w, h = rect.size
+    rows = band_rows(h, dense.band_fraction)
+    if dense.pixels_per_metre is not None:
+        zeta, source = float(dense.pixels_per_metre), "settings dense.pixels_per_metre"
+    else:
+        zeta = pixels_per_metre(rect.focal_px, rect.K[1, 2], dataset.radius_m, dense.camera_offset_m, rows)
+        source = (f"geometry: rectified focal {rect.focal_px:.3f} px, radius {dataset.radius_m} m, "
+                  f"camera offset {dense.camera_offset_m} m, rows {rows[0]}..{rows[1]}")
+    total = len(dataset)
+    stitch = Stitcher(rect.valid, dense.stitch_min_shift_px)
+    indices: list[int] = []
+    running = {"c": np.zeros(2)}
+
+    def on_frame(k: int, img: np.ndarray, t: np.ndarray) -> None:
+        running["c"] = running["c"] + t
+        stitch.add(-running["c"], img)
+        if progress is not None:
+            progress(k + 1, total)
+
+    start = time.perf_counter()
+    with result_folder(Path(out_dir)) as tmp:
+        frames = _frames(dataset, rect, indices, dense.gain_correct)
+        shifts, scores = estimate_shifts(frames, method, dense, rows, on_frame)
+        t_reg = time.perf_counter() - start
+        if len(indices) == 0:
+            raise PipemapError("no images in the dataset", dataset.root)
+        pos = integrate(shifts, zeta)
+        idx = np.array(indices, int)
+        traj = Trajectory(idx / dataset.fps, pos, np.tile(np.eye(3), (len(idx), 1, 1)))
+        t1 = time.perf_counter()
+        write_tum(tmp / "trajectory.tum", traj, header=(
+            f"pipemap dense VO ({method}): every frame's T_wc in metres; world = first camera's frame "
+            "(x along the pipe, z towards the viewed wall)"))
+        lines = ["index,keyframe,label"] + [f"{i},1,straight" for i in idx]
+        atomic_write_text(tmp / "frames.csv", "\n".join(lines) + "\n")
+        (tmp / "unrolled").mkdir()
+        canvas, origin = stitch.render()
+        atomic_write_bytes(tmp / "unrolled" / "dense_000.png", _to_png(canvas))
+        cx, cy = rect.K[0, 2], rect.K[1, 2]
+        sidecar = {
+            "image": "dense_000.png",
+            "kind": "dense-stitched",
+            "method": method,
+            "metres_per_pixel": 1.0 / zeta,
+            "pixels_per_metre": zeta,
+            "axis": {"origin": [0.0, 0.0, 0.0], "direction": [1.0, 0.0, 0.0]},
+            "column_0_along_m": float((origin[0] - cx) / zeta),
+            "row_0_across_m": float((origin[1] - cy) / zeta),
+            "note": ("perspective mosaic of the rectified frames (report section 6), not r*phi: columns run along the "
+                     "axis (world x, metres = column * metres_per_pixel + column_0_along_m at the first frame's "
+                     "principal row), rows across the pipe; mean of overlapping frames"),
+            "frames_pasted": len(stitch.tiles),
+        }
+        atomic_write_text(tmp / "unrolled" / "dense_000.json", json.dumps(sidecar, indent=2) + "\n")
+        from pipemap import __version__
+
+        seconds = {"registration": t_reg, "write": time.perf_counter() - t1}
+        seconds["total"] = time.perf_counter() - start
+        run = {
+            "version": __version__,
+            "stage": "dense",
+            "method": method,
+            "input": str(dataset.root),
+            "settings": settings.to_dict(),
+            "pixels_per_metre": zeta,
+            "gain_corrected": bool(dense.gain_correct and dataset.has_gain_mask),
+            "pixels_per_metre_source": source,
+            "rectified_size": [w, h],
+            "registered_rows": list(rows),
+            "pipe_radius_m": dataset.radius_m,
+            "frames": len(idx),
+            "keyframes": len(idx),
+            "frames_per_second": len(idx) / max(t_reg, 1e-9),
+            "distance_along_pipe_m": float(pos[-1, 0] - pos[0, 0]),
+            "seconds": {k: round(v, 3) for k, v in seconds.items()},
+        }
+        atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
+    return DenseResult(method, idx, shifts, scores, zeta, source, traj, (w, h), rows, seconds)
