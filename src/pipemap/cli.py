@@ -68,8 +68,13 @@ def expand_glob(pattern: str) -> list[Path]:
 
 @contextlib.contextmanager
 def frame_progress(label: str, keyframes: bool = False):
-    """A transient progress bar over frames on stderr; yields progress(done, total[, keyframes])."""
+    """A transient progress bar over frames on stderr; yields progress(done, total[, keyframes]).
+    Without a terminal (a log, a pipe) it stays silent, so errors remain one line."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    if not err_console.is_terminal:
+        yield lambda done, total, kf=0: None
+        return
 
     columns = [TextColumn(label), BarColumn(), MofNCompleteColumn()]
     if keyframes:
