@@ -10,8 +10,8 @@ paper-straight-16in forward-reverse at the presets' full image sizes, with frame
 apart on average (the report's runs have 1.4 mm (6 in) and 2.8 mm (16 in) between frames; fewer,
 wider-spaced frames keep the render short — the per-frame shift grows, the frame count falls; a
 spacing of 0 keeps the preset's own, i.e. the report's frame count).
-Every dataset gets the gain mask of its camera (report section 3.2): the white-card preset for the
-6-inch camera; the 16-inch camera's from a white-walled render of its own route (see white_card). zeta comes from the geometry with the camera's mount offset
+Every dataset gets the gain mask of its camera (report section 3.2): the white-card preset of
+that robot (route 6in or 16in). zeta comes from the geometry with the camera's mount offset
 read from the simulator's preset (`offset_down_m`: the camera rides below the axis looking up).
 
 Every method (and each --metrics metric for full search and hybrid; --raw: also without the gain
@@ -34,9 +34,8 @@ from pathlib import Path
 from pipemap.config import Settings
 from pipemap.dataset import load_dataset
 from pipemap.evaluation import evaluate
-from pipemap.gain_mask import build_gain_mask, save_gain_mask
 from pipemap.sim.presets import get_setup
-from pipemap.sim.simulate import GAIN_MASK_SIGMA_PX, simulate
+from pipemap.sim.simulate import simulate
 from pipemap.straight import DENSE_METHODS, run_dense
 
 CASES = {
@@ -68,20 +67,12 @@ def dataset(args, case: str) -> Path:
 
 
 def white_card(args, preset: str, route: str) -> Path:
-    """The gain mask of the preset's camera (report section 3.2): the white-card preset for the 6-inch
-    camera; for the 16-inch camera, which that preset does not model, 10 frames of the same route with a
-    white wall, averaged and smoothed like the white-card preset's."""
+    """The gain mask of the preset's camera (report section 3.2): the white-card preset of that robot."""
     card = Path(args.data) / f"white-{preset}-s{args.seed}"
     if (card / "gain_mask.png").exists():
         return card / "gain_mask.png"
     shutil.rmtree(card, ignore_errors=True)
-    if preset == "paper-straight-6in":
-        simulate("white-card", card, seed=args.seed)
-        return card / "gain_mask.png"
-    simulate(preset, card, seed=args.seed, route=route, frames=10, texture="white")
-    width = load_dataset(card).camera.width
-    mask, _ = build_gain_mask(sorted((card / "images").glob("*.png")), GAIN_MASK_SIGMA_PX * width / 1024)
-    save_gain_mask(card / "gain_mask.png", mask)
+    simulate("white-card", card, seed=args.seed, route="16in" if preset == "paper-straight-16in" else "6in")
     return card / "gain_mask.png"
 
 

@@ -231,7 +231,8 @@ def _sixteen_inch(width, height, route, seed):
 
 
 def _white_card(width, height, route, seed):
-    s = _six_inch(width, height, "forward", seed)
+    """White-card frames of the 6-inch robot (route '6in') or the 16-inch one (route '16in')."""
+    s = (_sixteen_inch if route == "16in" else _six_inch)(width, height, "forward", seed)
     ap = replace(s.appearance, texture_style="white", mm_per_px=1.0)
     drive = replace(s.drive, wobble_deg=0.0, wobble_m=0.0, speed_variation=0.0)
     return Setup("white-card", s.scene, s.camera, s.path_vertices, drive, ap, s.fps, frames=10, still=True,
@@ -247,8 +248,8 @@ register_preset("paper-straight-16in", "2010 report pipe 2: 4 m x 387.56 mm, per
 register_preset("fisheye-straight", "one straight 6 m x 400 mm pipe, 190 deg fisheye 1280x960",
                 ("forward", "forward-reverse"), _fisheye_straight)
 register_preset("demo-loop", "small 2 m x 1.5 m tee loop, fisheye 640x480 (fast)", ("A", "B"), _demo_loop)
-register_preset("white-card", "2010 report gain-mask images: white wall, LEDs on, still camera; writes gain_mask.png",
-                ("default",), _white_card)
+register_preset("white-card", "2010 report gain-mask images: white wall, LEDs on, still camera; writes gain_mask.png; "
+                "route = the robot", ("6in", "16in"), _white_card)
 
 
 def _calibration(folder: Path, *, width=None, height=None, frames=None, seed=0, route=None, progress=None) -> None:
