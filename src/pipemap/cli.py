@@ -311,6 +311,7 @@ def run_command(
         with frame_progress(method) as progress:
             dense = run_dense(dataset, out, settings, method, progress=progress)
         console.print(f"{len(dense.indices)} frames registered ({method}) -> {out}")
+        console.print(f"scale: {dense.zeta:.1f} px/m from {dense.zeta_source}", markup=False)
         return
     if method != "fisheye":
         raise PipemapError(f"unknown method {method!r} (expected auto, fisheye, {', '.join(DENSE_METHODS)})", "--method")
