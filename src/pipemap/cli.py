@@ -190,7 +190,7 @@ def calibrate(
     """Calibrate a camera from checkerboard images: RMS and per-view reprojection error, then the camera block."""
     from pipemap.camera import MODELS
     from pipemap.camera.calibration import calibrate_images, save_calibration
-    from pipemap.output import check_new_file
+    from pipemap.output import check_new_file, replacing
 
     if model not in MODELS:
         raise PipemapError(f"unknown camera model {model!r} (expected one of {', '.join(MODELS)})", "--model")
@@ -210,12 +210,8 @@ def calibrate(
         table.add_row(Path(path).name, f"skipped: {why}")
     console.print(table)
     console.print(repr(result.camera), markup=False)
-    tmp = out.with_name(f".{out.name}.partial")
-    try:
+    with replacing(out) as tmp:
         save_calibration(tmp, result)
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
     console.print(f"camera written to {out}")
 
 
@@ -230,19 +226,15 @@ def gain_mask(
     """Build a flat-field gain mask from white-card images (2010 report, section 3.2)."""
     from pipemap.config import Settings
     from pipemap.gain_mask import build_gain_mask, save_gain_mask
-    from pipemap.output import check_new_file
+    from pipemap.output import check_new_file, replacing
 
     check_new_file(out, force)
     paths = expand_glob(images)
     mask, skipped = build_gain_mask(paths, sigma if sigma is not None else Settings().gain_mask.sigma_px)
     for p, why in skipped:
         err_console.print(f"skipped {p}: {why}", markup=False)
-    tmp = out.with_name(f".{out.stem}.partial.png")
-    try:
+    with replacing(out) as tmp:
         save_gain_mask(tmp, mask)
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
     rel = mask / mask.max()
     console.print(
         f"gain mask from {len(paths) - len(skipped)} images -> {out} "

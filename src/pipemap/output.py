@@ -37,6 +37,19 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 
 @contextlib.contextmanager
+def replacing(path: Path) -> Iterator[Path]:
+    """Yield a temporary name beside `path` (same suffix) to write to; it is renamed onto `path` when
+    the block succeeds and removed otherwise."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
 def result_folder(out: Path) -> Iterator[Path]:
     """Yield a temporary folder beside `out`; on success it is renamed to `out`, on failure removed.
 
