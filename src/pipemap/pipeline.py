@@ -1,10 +1,12 @@
 """`pipemap run`: the stages in order, writing the result folder of spec/formats.md.
 
-Each frame is classified straight / junction (fisheye paper III-B) and tracked (III-A); the
-keyframes stream into the straight-section VO (III-C) as they are made. T-intersections are not
-modelled yet: the VO treats the run as straight sections split only where tracking is lost, and
-the junction labels and clusters are recorded in frames.csv and run.json. Writes
-trajectory.tum, sparse.ply, frames.csv and run.json.
+1. Tracking: every frame is classified straight / junction (fisheye paper III-B) and tracked
+   (III-A) into keyframes with relative poses.
+2. Mapping: the keyframes go through the metric VO (III-C) in sections of one class: straight
+   sections get cylinder-regularised sliding-window SBA, junction sections are chained through
+   with the relative poses and the scale of the tracks; cylinders are fitted to the straight
+   sections and their ends, and each tee centre is where the end cylinders either side meet (III-D).
+Writes trajectory.tum, junctions.yaml, sparse.ply, frames.csv and run.json.
 """
 
 from __future__ import annotations
@@ -15,15 +17,38 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+import yaml
+
+from pipemap.backend.network_map import MappedJunction, MappedSection, map_junctions, map_sections
 from pipemap.backend.sparse_ply import write_sparse_ply
 from pipemap.backend.straight import StraightResult, StraightVO
 from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
+from pipemap.errors import PipemapError
 from pipemap.frontend import FeatureTracker
 from pipemap.frontend.classification import SequenceClass, SequenceClassifier
+from pipemap.frontend.tracks import Keyframe
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.trajectory import Trajectory, write_tum
+
+
+@dataclass
+class FrontEndResult:
+    keyframes: list[Keyframe]
+    classes: SequenceClass
+    image_count: int
+    seconds: dict
+
+
+@dataclass
+class NetworkResult:
+    straight: StraightResult
+    sections: list[MappedSection]
+    junctions: list[MappedJunction]
+    keyframes: list[Keyframe]
+    seconds: dict
 
 
 @dataclass
@@ -32,96 +57,138 @@ class PipelineResult:
     image_count: int
     keyframe_count: int
     straight: StraightResult
+    junctions: list[MappedJunction]
     seconds: dict  # per stage
 
 
-def write_results(folder: Path, dataset: Dataset, image_count: int, result: StraightResult, settings: Settings,
-                  seconds: dict, classes: SequenceClass | None = None) -> None:
-    """trajectory.tum, sparse.ply, frames.csv and run.json into `folder`."""
+def track_and_classify(dataset: Dataset, settings: Settings,
+                       progress: Callable[[int, int, int], None] | None = None) -> FrontEndResult:
+    """Stage 1: every frame classified straight / junction (III-B) and tracked (III-A)."""
+    tracker = FeatureTracker(dataset.camera, settings.frontend, settings.seed)
+    classifier = SequenceClassifier(dataset.camera, settings.classification)
+    total = len(dataset)
+    keyframes: list[Keyframe] = []
+    classify_s, done = 0.0, 0
+    start = time.perf_counter()
+    for frame in dataset.frames():
+        t = time.perf_counter()
+        classifier.add(frame)
+        classify_s += time.perf_counter() - t
+        keyframes.extend(tracker.process(frame))
+        done += 1
+        if progress is not None:
+            progress(done, total, len(keyframes))
+    keyframes.extend(tracker.finish())
+    if done == 0:
+        raise PipemapError("no images could be read", dataset.root)
+    seconds = {"frontend": time.perf_counter() - start - classify_s, "classification": classify_s}
+    return FrontEndResult(keyframes, classifier.result(), done, seconds)
+
+
+def keyframe_labels(keyframes: list[Keyframe], classes: SequenceClass) -> np.ndarray:
+    """True for keyframes whose image was classified junction (after the temporal filter)."""
+    lookup = dict(zip(np.asarray(classes.indices).tolist(), np.asarray(classes.junction).tolist()))
+    return np.array([bool(lookup.get(kf.index, False)) for kf in keyframes], bool)
+
+
+def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> NetworkResult:
+    """Stage 2: metric VO of the straight sections (III-C) chained through the junctions, then the
+    sections' cylinders and the tee centres (III-D)."""
+    vo = StraightVO(dataset.camera, dataset.radius_m, settings)
+    junction = keyframe_labels(front.keyframes, front.classes)
+    for kf, j in zip(front.keyframes, junction):
+        vo.add(kf, junction=bool(j))
+    result = vo.finish()
+    t = time.perf_counter()
+    sections = map_sections(result.sections, vo.keyframes, result.poses, result.points, result.point_tracks,
+                            dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m)
+    junctions = map_junctions(result.sections, sections, result.poses)
+    seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
+               "network": time.perf_counter() - t}
+    return NetworkResult(result, sections, junctions, vo.keyframes, seconds)
+
+
+def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
+    doc = {"format": "pipemap-junctions/1", "junctions": [j.to_dict() for j in junctions]}
+    atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
+
+
+def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: NetworkResult, settings: Settings,
+                  seconds: dict) -> None:
+    """trajectory.tum, junctions.yaml, sparse.ply, frames.csv and run.json into `folder`."""
     t0 = time.perf_counter()
+    result = net.straight
     traj = Trajectory.from_matrices(result.indices / dataset.fps, result.poses)
     write_tum(folder / "trajectory.tum", traj,
-              header="pipemap straight-section VO: keyframe T_wc in metres, world = first keyframe's camera")
+              header="pipemap fisheye VO: keyframe T_wc in metres, world = first keyframe's camera")
+    write_junctions(folder / "junctions.yaml", net.junctions)
     write_sparse_ply(folder / "sparse.ply", result.points)
-    labels = None
-    if classes is not None and len(classes.indices) == image_count:
-        labels = classes.labels
-    write_frames_csv(folder / "frames.csv", image_count, result.indices.tolist(), labels)
+    classes = front.classes
+    labels = classes.labels if len(classes.indices) == front.image_count else None
+    write_frames_csv(folder / "frames.csv", front.image_count, result.indices.tolist(), labels)
     seconds = dict(seconds)
     seconds["write"] = time.perf_counter() - t0
     from pipemap import __version__
 
-    windows = result.windows
+    problems = [f"section {m.number}: {p}" for m in net.sections for p in m.problems]
+    problems += [f"{j.id}: only one straight section beside it, centre from the camera path" for j in net.junctions
+                 if j.method == "path"]
     run = {
         "version": __version__,
         "stage": "run",
         "input": str(dataset.root),
         "settings": settings.to_dict(),
         "pipe_radius_m": dataset.radius_m,
-        "frames": image_count,
+        "frames": front.image_count,
         "keyframes": len(result.indices),
         "points": len(result.points),
-        "lost_keyframes": max(len(result.sections) - 1, 0),
+        "lost_keyframes": sum(1 for s in result.sections[1:] if not s.linked),
         "sections": [s.to_dict() for s in result.sections],
-        "metric_chain": ("one section: one metric chain" if len(result.sections) <= 1 else
-                         "tracking was lost: each section is metric on its own (its own cylinder scale); a new "
-                         "section starts at the previous keyframe's pose, the motion during the gap is not recovered"),
-        "windows": [w.to_dict() for w in windows],
-        "junction_clusters": None if classes is None else [list(c) for c in classes.clusters],
+        "straight_sections": [m.to_dict() for m in net.sections],
+        "junctions": [dict(j.to_dict(), method=j.method, angle_deg=round(j.angle_deg, 3),
+                           axes_gap_m=round(j.gap_m, 5), first_keyframe=j.first, last_keyframe=j.last)
+                      for j in net.junctions],
+        "junction_clusters": [list(c) for c in classes.clusters],
+        "problems": problems,
+        "windows": [w.to_dict() for w in result.windows],
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
     }
-    atomic_write_text(folder / "run.json", json.dumps(run, indent=2) + "\n")
+    atomic_write_text(folder / "run.json", json.dumps(run, indent=2, default=_json_default) + "\n")
+
+
+def _json_default(v):
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    raise TypeError(type(v))
 
 
 def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
-                 progress: Callable[[int, int, int], None] | None = None) -> PipelineResult:
+                 progress: Callable[[int, int, int], None] | None = None,
+                 on_stage: Callable[[str], None] | None = None) -> PipelineResult:
     """Run every stage on the dataset at `dataset_path` and write the result folder `out_dir` atomically.
 
-    progress(done, total, keyframes) is called after every frame.
+    progress(done, total, keyframes) is called after every frame of the tracking stage;
+    on_stage(name) when a stage starts ("tracking", "mapping", "writing").
     """
     settings = settings or Settings()
     dataset = load_dataset(dataset_path)
-    total = len(dataset)
-    seconds = {"frontend": 0.0, "straight_relative": 0.0, "straight_windows": 0.0}
+    start = time.perf_counter()
+    stage = on_stage or (lambda name: None)
     with result_folder(Path(out_dir)) as tmp:
-        tracker = FeatureTracker(dataset.camera, settings.frontend, settings.seed)
-        vo = StraightVO(dataset.camera, dataset.radius_m, settings)
-        start = time.perf_counter()
-        done = 0
-        backend = 0.0
-
-        def feed(keyframes):
-            nonlocal backend
-            t = time.perf_counter()
-            for kf in keyframes:
-                vo.add(kf)
-            backend += time.perf_counter() - t
-
-        classifier = SequenceClassifier(dataset.camera, settings.classification)
-        classify_s = 0.0
-        for frame in dataset.frames():
-            t = time.perf_counter()
-            classifier.add(frame)
-            classify_s += time.perf_counter() - t
-            feed(tracker.process(frame))
-            done += 1
-            if progress is not None:
-                progress(done, total, len(tracker.keyframes))
-        feed(tracker.finish())
-        t = time.perf_counter()
-        result = vo.finish()
-        backend += time.perf_counter() - t
-        seconds["frontend"] = time.perf_counter() - start - backend - classify_s
-        seconds["classification"] = classify_s
-        seconds["straight_relative"] = result.seconds["relative"]
-        seconds["straight_windows"] = result.seconds["windows"]
+        stage("tracking")
+        front = track_and_classify(dataset, settings, progress)
+        stage("mapping")
+        net = map_network(front, dataset, settings)
+        stage("writing")
+        seconds = dict(front.seconds)
+        seconds.update(net.seconds)
         seconds["total"] = time.perf_counter() - start
-        if done == 0:
-            from pipemap.errors import PipemapError
-
-            raise PipemapError("no images could be read", dataset.root)
-        write_results(tmp, dataset, done, result, settings, seconds, classifier.result())
-    return PipelineResult(Path(out_dir), done, len(result.indices), result, seconds)
+        write_results(tmp, dataset, front, net, settings, seconds)
+    return PipelineResult(Path(out_dir), front.image_count, len(net.straight.indices), net.straight, net.junctions,
+                          seconds)
 
 
-__all__ = ["PipelineResult", "run_pipeline", "write_results"]
+__all__ = ["FrontEndResult", "NetworkResult", "PipelineResult", "track_and_classify", "map_network",
+           "keyframe_labels", "run_pipeline", "write_results", "write_junctions"]

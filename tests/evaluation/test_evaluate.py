@@ -80,7 +80,7 @@ def test_ground_truth_as_estimate_has_zero_error_and_writes_metrics(tmp_path):
     assert len(res.junctions.pairs) == 6
     assert all(abs(p.error) < 1e-9 and abs(p.error_pct) < 1e-7 for p in res.junctions.pairs)
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    assert list(metrics) == ["format", "dataset", "poses", "ate", "path_length", "distance_travelled", "junctions", "notes"]
+    assert list(metrics) == ["format", "dataset", "poses", "ate", "path_length", "distance_travelled", "junctions", "sections", "notes"]
     assert metrics["format"] == "pipemap-metrics/1" and metrics["dataset"] == "synthetic"
     assert metrics["poses"]["associated"] == len(gt)
     assert set(metrics["ate"]) == {"rigid", "sim3"}
@@ -269,3 +269,20 @@ def test_network_is_optional(tmp_path):
     (data / "ground_truth" / "network.yaml").unlink()
     res = evaluate(_result(tmp_path / "out", gt), data)
     assert res.distance is None and res.junctions is None and "network.yaml" in res.notes[0]
+
+
+def test_section_errors_measure_each_straight_section():
+    from pipemap.evaluation.sections import section_errors
+    from pipemap.trajectory import Trajectory
+
+    ts = np.arange(200) / 7.5
+    gt = Trajectory(ts, np.column_stack([np.linspace(0, 4, 200), np.zeros(200), np.zeros(200)]),
+                    np.tile(np.eye(3), (200, 1, 1)))
+    est_pos = gt.positions.copy()
+    est_pos[100:] = est_pos[100] + 1.01 * (est_pos[100:] - est_pos[100])  # the second section 1 % long
+    est = Trajectory(ts, est_pos, gt.rotations)
+    rows = section_errors([{"section": 0, "first_keyframe": 0, "last_keyframe": 99},
+                           {"section": 2, "first_keyframe": 100, "last_keyframe": 199},
+                           {"section": 4, "first_keyframe": 10, "last_keyframe": 12}], est, gt)
+    assert [r.section for r in rows] == [0, 2]  # the 4 cm section is too short to judge
+    assert abs(rows[0].error_pct) < 1e-9 and rows[1].error_pct == pytest.approx(1.0, rel=1e-6)

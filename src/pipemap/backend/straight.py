@@ -73,6 +73,8 @@ class SectionReport:
     last: int
     scale: str  # "cylinder" (metric from r), "assumed" (previous section's step length) or "unit"
     windows: int = 0
+    kind: str = "straight"  # "straight" or "junction" (image classification, fisheye paper III-B)
+    linked: bool = False  # continues the previous section's chain (tracks, pose and scale carry over)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -120,6 +122,7 @@ class StraightVO:
         self._solved_until = -1  # keyframes up to this number were solved by a window of the current section
         self._metric = False
         self._first_tid = 0
+        self._chain_first = 0  # first keyframe of the current unbroken chain of linked sections
         self._t_rel = 0.0
         self._t_win = 0.0
 
@@ -142,7 +145,10 @@ class StraightVO:
 
     # -- per keyframe ---------------------------------------------------------------------
 
-    def add(self, kf: Keyframe) -> None:
+    def add(self, kf: Keyframe, junction: bool = False) -> None:
+        """Add the next keyframe; `junction` is its image class (fisheye paper III-B). A change of
+        class starts a new section linked to the previous one: no window spans a junction and a
+        junction section has no straight-cylinder window of its own (the tee model joins it)."""
         t0 = time.perf_counter()
         if kf.number != len(self.keyframes):
             raise ValueError(f"keyframes must come in order: expected number {len(self.keyframes)}, got {kf.number}")
@@ -150,15 +156,21 @@ class StraightVO:
         if len(tids):
             self._grow(int(tids.max()))
         k = len(self.keyframes)
-        new_section = k == 0 or not kf.pose_valid
-        if new_section:
+        kind = "junction" if junction else "straight"
+        broken = k == 0 or not kf.pose_valid
+        if broken:
             if k > 0:
                 self._close_section()
             R, c = (np.eye(3), np.zeros(3)) if k == 0 else (self.R[-1].copy(), self.c[-1].copy())
-            self.sections.append(SectionReport(len(self.sections), k, k, "unit"))
+            self.sections.append(SectionReport(len(self.sections), k, k, "unit", kind=kind))
             self._solved_until, self._metric = -1, False
             self._first_tid = int(tids.min()) if len(tids) else len(self._has)
+            self._chain_first = k
         else:
+            if kind != self.section.kind:
+                self._close_section()
+                self.sections.append(SectionReport(len(self.sections), k, k, self.section.scale, kind=kind,
+                                                   linked=True))
             s = self._relative_scale(kf)
             Rp, cp = self.R[-1], self.c[-1]
             R = Rp @ kf.R.T
@@ -170,7 +182,7 @@ class StraightVO:
         fresh = self._first_kf[tids] < 0
         self._first_kf[tids[fresh]] = k
         self.section.last = k
-        if not new_section:
+        if not broken:
             self._triangulate(kf)
         self._t_rel += time.perf_counter() - t0
         n = k - self.section.first + 1
@@ -181,7 +193,7 @@ class StraightVO:
         """Length of the new step, from tracks that already have 3D points (see the module docstring)."""
         prev = self.keyframes[-1]
         sec = self.section
-        last_step = np.linalg.norm(self.c[-1] - self.c[-2]) if len(self.c) - 1 > sec.first else 1.0
+        last_step = np.linalg.norm(self.c[-1] - self.c[-2]) if len(self.c) - 1 > self._chain_first else 1.0
         cur = np.flatnonzero(kf.inliers)
         _, ip, ic = np.intersect1d(prev.track_ids, kf.track_ids[cur], assume_unique=True, return_indices=True)
         ic = cur[ic]
@@ -224,7 +236,7 @@ class StraightVO:
         tids = np.sort(tids[~self._has[tids] & ~self._dead[tids] & (tids >= self._first_tid)])
         if not len(tids):
             return
-        lo = max(int(self._first_kf[tids].min()), self.section.first, kf.number - self.b.window + 1)
+        lo = max(int(self._first_kf[tids].min()), self._chain_first, kf.number - self.b.window + 1)
         ks, which, d = self._observations(tids, lo, kf.number)
         c = np.stack(self.c)[ks] if len(ks) else np.zeros((0, 3))
         tri = triangulate_rays(c, d, which, len(tids), min_parallax_deg=self.s.min_parallax_deg)
@@ -246,15 +258,18 @@ class StraightVO:
         return tids[tids >= self._first_tid]
 
     def _rescale_section(self, f: float) -> None:
+        """Scale the current chain (its linked sections so far) about its first camera centre."""
         sec = self.section
-        o = self.c[sec.first].copy()
-        for k in range(sec.first, sec.last + 1):
+        o = self.c[self._chain_first].copy()
+        for k in range(self._chain_first, sec.last + 1):
             self.c[k] = o + f * (self.c[k] - o)
         tids = self._section_points()
         self._X[tids] = o + f * (self._X[tids] - o)
 
     def _solve_window(self) -> None:
         sec = self.section
+        if sec.kind != "straight":
+            return
         last = sec.last
         first = max(sec.first, last - self.b.window + 1)
         n = last - first + 1

@@ -25,6 +25,7 @@ from pipemap.evaluation.metrics import (
     path_length,
     percent,
 )
+from pipemap.evaluation.sections import SectionError, read_sections, section_errors
 from pipemap.network import PipeNetwork, load_network
 from pipemap.output import atomic_write_text
 from pipemap.trajectory import Trajectory, read_tum
@@ -46,6 +47,7 @@ class EvaluationResult:
     distance: DistanceTravelled | None = None  # straight (one-segment) networks
     turnaround_time_s: tuple[float, float] | None = None  # (ground truth, estimate)
     junctions: JunctionTable | None = None  # networks with junctions and a junctions.yaml
+    sections: tuple[SectionError, ...] = ()  # straight sections one by one (run.json lists them)
     notes: tuple[str, ...] = field(default_factory=tuple)  # why a table is absent
 
     @property
@@ -91,6 +93,7 @@ class EvaluationResult:
                 },
                 "distance_travelled": distance,
                 "junctions": None if self.junctions is None else self.junctions.as_dict(),
+                "sections": [x.as_dict() for x in self.sections],
                 "notes": list(self.notes),
             }
         )
@@ -202,6 +205,7 @@ def evaluate(result_dir: str | Path, dataset_dir: str | Path, write: bool = True
         distance=distance,
         turnaround_time_s=turnaround,
         junctions=junctions,
+        sections=tuple(section_errors(read_sections(result_dir / "run.json"), est, gt)),
         notes=tuple(notes),
     )
     if write:

@@ -74,9 +74,24 @@ def junction_distance_table(result: EvaluationResult) -> Table | None:
     return t
 
 
+def section_table(result: EvaluationResult) -> Table | None:
+    """Each straight section's length (first to last camera centre) against the truth, no alignment."""
+    if not result.sections:
+        return None
+    worst = max(abs(s.error_pct) for s in result.sections)
+    t = Table(title="Straight sections, one by one (no alignment)", caption=f"max |error| {worst:.3f} %")
+    for name in ("Section", "Keyframes", "Truth (m)", "Estimate (m)", "Error (%)", "Path error (%)"):
+        t.add_column(name, justify="right")
+    for s in result.sections:
+        t.add_row(str(s.section), f"{s.first_keyframe}-{s.last_keyframe}", _num(s.truth_m, ".3f"),
+                  _num(s.estimate_m, ".3f"), _num(s.error_pct, "+.3f"), _num(s.path_error_pct, "+.3f"))
+    return t
+
+
 def tables(result: EvaluationResult) -> list[Table]:
     """All tables that apply to this result, in reading order."""
-    return [t for t in (summary_table(result), distance_travelled_table(result), junction_distance_table(result)) if t is not None]
+    return [t for t in (summary_table(result), distance_travelled_table(result), junction_distance_table(result),
+                        section_table(result)) if t is not None]
 
 
 def print_tables(result: EvaluationResult, console: Console | None = None) -> None:

@@ -1,0 +1,180 @@
+"""The mapped pipe network: straight sections with their fitted cylinders, and the tees between them.
+
+After the VO, each straight section gets cylinders of the pipe radius fitted to its scene points
+(fisheye paper III-D): one to the whole section (its axis, for the unrolled wall image and the
+appearance map) and one to each of its ends, the points around the first / last `length_m` of
+camera path, relative to the first / last pose. A junction section (frames classified as a
+T-intersection) lies between two straight sections; its centre I is where the end cylinder
+before it and the start cylinder after it meet (the two-cylinder model's intersection point, the
+closest approach of the two axes). When the two axes are nearly parallel the robot went straight
+through the tee and the axes do not fix I along the pipe: I is then the junction keyframes' mean
+camera centre, projected onto the axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipemap.frontend.tracks import Keyframe
+from pipemap.geometry.cylinder import Cylinder, fit_cylinder
+
+STRAIGHT_THROUGH_DEG = 20.0  # axes closer to parallel than this cannot place a tee centre
+
+
+@dataclass
+class MappedSection:
+    number: int  # the VO section number
+    first: int  # keyframe numbers (inclusive)
+    last: int
+    cylinder: Cylinder | None  # fitted to the whole section
+    start: Cylinder | None  # fitted to the first length_m, relative to the first pose
+    end: Cylinder | None  # ... the last length_m, relative to the last pose
+    start_h: float = 0.0  # axial extent of the section's camera centres on `cylinder`
+    end_h: float = 0.0
+    problems: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        def cyl(c):
+            return None if c is None else {"origin": c.origin.round(6).tolist(),
+                                           "direction": c.direction.round(6).tolist(), "radius": c.radius}
+        return {"section": self.number, "first_keyframe": self.first, "last_keyframe": self.last,
+                "cylinder": cyl(self.cylinder), "start_cylinder": cyl(self.start), "end_cylinder": cyl(self.end),
+                "problems": self.problems}
+
+
+@dataclass
+class MappedJunction:
+    id: str
+    centroid: np.ndarray  # (3,) world
+    keyframe: int  # the keyframe nearest the centre
+    first: int  # keyframe numbers of the junction section (inclusive)
+    last: int
+    before: int | None  # straight section numbers either side (None at either end of the run)
+    after: int | None
+    angle_deg: float  # between the two axes (nan when one side is missing)
+    method: str  # "axes" | "straight-through" | "path" | "tee-model"
+    gap_m: float = float("nan")  # closest-approach distance of the two axes
+
+    def to_dict(self) -> dict:
+        return {"id": self.id, "type": "tee", "centroid": [round(float(v), 6) for v in self.centroid],
+                "keyframe": int(self.keyframe)}
+
+
+def section_points(keyframes: list[Keyframe], first: int, last: int, tids: np.ndarray) -> np.ndarray:
+    """Positions in `tids` (sorted track ids with a 3D point) of the points seen by keyframes first..last."""
+    seen = np.unique(np.concatenate([keyframes[k].track_ids for k in range(first, last + 1)]))
+    pos = np.searchsorted(tids, seen)
+    ok = pos < len(tids)
+    ok[ok] = tids[pos[ok]] == seen[ok]
+    return pos[ok]
+
+
+def _fit(points: np.ndarray, centres: np.ndarray, R_ref, c_ref, radius: float, huber: float) -> Cylinder | None:
+    direction = centres[-1] - centres[0]
+    if len(points) < 20 or np.linalg.norm(direction) < 2 * radius * 0.25:
+        return None
+    try:
+        return fit_cylinder(points, radius, reference=(R_ref, c_ref), direction=direction, huber=huber).cylinder
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+
+
+def _near_path(points: np.ndarray, centres: np.ndarray, margin: float) -> np.ndarray:
+    """Points whose projection on the path's chord falls within the chord (+- margin)."""
+    d = centres[-1] - centres[0]
+    L = np.linalg.norm(d)
+    if L <= 0:
+        return np.zeros(len(points), bool)
+    s = (points - centres[0]) @ (d / L)
+    return (s > -margin) & (s < L + margin)
+
+
+def map_sections(sections, keyframes: list[Keyframe], poses: np.ndarray, points: np.ndarray, tids: np.ndarray,
+                 radius: float, length_m: float = 1.0, huber_m: float = 0.005) -> list[MappedSection]:
+    """Cylinders of every straight section (see the module docstring). `sections`: the VO's SectionReports."""
+    order = np.argsort(tids)
+    tids_sorted, points_sorted = tids[order], points[order]
+    centres = poses[:, :3, 3]
+    out = []
+    for sec in sections:
+        if sec.kind != "straight":
+            continue
+        ms = MappedSection(sec.number, sec.first, sec.last, None, None, None)
+        pos = section_points(keyframes, sec.first, sec.last, tids_sorted)
+        P = points_sorted[pos]
+        C = centres[sec.first:sec.last + 1]
+        keep = _near_path(P, C, radius)
+        ms.cylinder = _fit(P[keep], C, poses[sec.first, :3, :3], C[0], radius, huber_m)
+        path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(C, axis=0), axis=1))])
+        for end in ("start", "end"):
+            sel = path <= length_m if end == "start" else path >= path[-1] - length_m
+            ks = np.flatnonzero(sel) + sec.first
+            k0, k1 = int(ks.min()), int(ks.max())
+            pos = section_points(keyframes, k0, k1, tids_sorted)
+            Pe, Ce = points_sorted[pos], centres[k0:k1 + 1]
+            ref = k0 if end == "start" else k1
+            cyl = _fit(Pe[_near_path(Pe, Ce, 0.5 * radius)], Ce, poses[ref, :3, :3], centres[ref], radius, huber_m)
+            setattr(ms, end, cyl)
+        if ms.cylinder is not None:
+            h = ms.cylinder.axial(C)
+            ms.start_h, ms.end_h = float(h[0]), float(h[-1])
+        else:
+            ms.problems.append("too few points or too short for a cylinder fit")
+        out.append(ms)
+    return out
+
+
+def axes_meeting_point(a: Cylinder, b: Cylinder) -> tuple[np.ndarray, float, float]:
+    """Midpoint of the closest approach of two axes, their distance there, and the angle between them (deg)."""
+    d1, d2 = a.direction, b.direction
+    w = a.origin - b.origin
+    b12 = d1 @ d2
+    den = 1.0 - b12 * b12
+    angle = float(np.degrees(np.arccos(np.clip(abs(b12), 0.0, 1.0))))
+    if den < 1e-9:
+        return 0.5 * (a.origin + b.origin), float(np.linalg.norm(w - (w @ d1) * d1)), angle
+    s = (b12 * (w @ d2) - (w @ d1)) / den
+    t = ((w @ d2) - b12 * (w @ d1)) / den
+    p1, p2 = a.origin + s * d1, b.origin + t * d2
+    return 0.5 * (p1 + p2), float(np.linalg.norm(p1 - p2)), angle
+
+
+def map_junctions(sections, mapped: list[MappedSection], poses: np.ndarray) -> list[MappedJunction]:
+    """Tee centres of every junction section, in the order the camera passes them (see the module docstring)."""
+    by_number = {m.number: m for m in mapped}
+    centres = poses[:, :3, 3]
+    out: list[MappedJunction] = []
+    for i, sec in enumerate(sections):
+        if sec.kind != "junction":
+            continue
+        prev = sections[i - 1] if i > 0 and sec.linked else None
+        nxt = sections[i + 1] if i + 1 < len(sections) and sections[i + 1].linked else None
+        before = by_number.get(prev.number) if prev is not None else None
+        after = by_number.get(nxt.number) if nxt is not None else None
+        a = before.end if before is not None else None
+        b = after.start if after is not None else None
+        path_centre = centres[sec.first:sec.last + 1].mean(axis=0)
+        angle, gap = float("nan"), float("nan")
+        if a is not None and b is not None:
+            centroid, gap, angle = axes_meeting_point(a, b)
+            method = "axes"
+            if angle < STRAIGHT_THROUGH_DEG:
+                centroid = a.origin + a.axial(path_centre) * a.direction
+                method = "straight-through"
+        elif a is not None or b is not None:
+            c = a if a is not None else b
+            centroid = c.origin + c.axial(path_centre) * c.direction
+            method = "path"
+        else:
+            centroid, method = path_centre, "path"
+        k = sec.first + int(np.argmin(np.linalg.norm(centres[sec.first:sec.last + 1] - centroid, axis=1)))
+        out.append(MappedJunction(f"T{len(out) + 1}", np.asarray(centroid, float), k, sec.first, sec.last,
+                                  None if before is None else before.number, None if after is None else after.number,
+                                  angle, method, gap))
+    return out
+
+
+__all__ = ["MappedSection", "MappedJunction", "map_sections", "map_junctions", "axes_meeting_point",
+           "section_points", "STRAIGHT_THROUGH_DEG"]

@@ -1,0 +1,80 @@
+"""Tee centres from the cylinders either side (fisheye paper III-D), on exact synthetic geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipemap.backend.network_map import axes_meeting_point, map_junctions, map_sections
+from pipemap.backend.straight import SectionReport
+from pipemap.frontend.tracks import Keyframe
+from pipemap.geometry.cylinder import Cylinder
+from pipemap.geometry.rotations import look_rotation
+
+R = 0.2
+
+
+def test_axes_meeting_point_right_angle_and_oblique():
+    a = Cylinder([0, 0, 0], [1, 0, 0], R)
+    b = Cylinder([3, 2, 0.004], [0, 1, 0], R)
+    p, gap, angle = axes_meeting_point(a, b)
+    assert np.allclose(p, [3, 0, 0.002], atol=1e-12) and gap == pytest.approx(0.004) and angle == pytest.approx(90)
+    c = Cylinder([1, 0, 0], [np.cos(np.radians(60)), np.sin(np.radians(60)), 0], R)
+    p, gap, angle = axes_meeting_point(a, c)
+    assert np.allclose(p, [1, 0, 0], atol=1e-12) and gap < 1e-12 and angle == pytest.approx(60)
+
+
+def _l_shaped_run(rng):
+    """Cameras along x to the tee at (2, 0, 0), around a 0.2 m arc, then along +y; wall points
+    around each leg; every keyframe sees the points within 0.6 m of it."""
+    centres, dirs = [], []
+    for s in np.arange(0.0, 1.8, 0.02):
+        centres.append([s, 0, 0]); dirs.append([1, 0, 0])
+    for a in np.linspace(0, np.pi / 2, 12)[1:-1]:
+        centres.append([1.8 + 0.2 * np.sin(a), 0.2 - 0.2 * np.cos(a), 0]); dirs.append([np.cos(a), np.sin(a), 0])
+    for s in np.arange(0.2, 2.0, 0.02):
+        centres.append([2.0, s, 0]); dirs.append([0, 1, 0])
+    centres, dirs = np.array(centres), np.array(dirs)
+    poses = np.tile(np.eye(4), (len(centres), 1, 1))
+    for k, (c, d) in enumerate(zip(centres, dirs)):
+        poses[k, :3, :3] = look_rotation(d, np.array([0, 0, -1.0]))
+        poses[k, :3, 3] = c
+    phi = rng.uniform(0, 2 * np.pi, 3000)
+    h = rng.uniform(0, 2.0, 3000)
+    leg1 = np.column_stack([h, R * np.cos(phi), R * np.sin(phi)])
+    leg2 = np.column_stack([2.0 + R * np.cos(phi), h, R * np.sin(phi)])
+    points = np.vstack([leg1, leg2]) + rng.normal(0, 0.0005, (6000, 3))
+    tids = np.arange(len(points))
+    kfs = []
+    for k, c in enumerate(centres):
+        seen = tids[np.linalg.norm(points - c, axis=1) < 0.6]
+        kfs.append(Keyframe(k, k, k / 7.5, np.zeros((len(seen), 2)), np.zeros((len(seen), 3)), seen,
+                            np.ones(len(seen), bool), np.zeros(len(seen), bool), np.eye(3), np.zeros(3), True))
+    return poses, points, tids, kfs
+
+
+def test_tee_centre_from_end_cylinders():
+    poses, points, tids, kfs = _l_shaped_run(np.random.default_rng(0))
+    n1 = 90
+    n2 = n1 + 10
+    sections = [SectionReport(0, 0, n1 - 1, "cylinder"), SectionReport(1, n1, n2 - 1, "cylinder", kind="junction",
+                                                                       linked=True),
+                SectionReport(2, n2, len(poses) - 1, "cylinder", linked=True)]
+    mapped = map_sections(sections, kfs, poses, points, tids, R, length_m=1.0)
+    assert [m.number for m in mapped] == [0, 2]
+    assert np.allclose(abs(mapped[0].cylinder.direction @ [1, 0, 0]), 1, atol=1e-4)
+    assert np.allclose(abs(mapped[1].end.direction @ [0, 1, 0]), 1, atol=1e-4)
+    (tee,) = map_junctions(sections, mapped, poses)
+    assert tee.method == "axes" and tee.angle_deg == pytest.approx(90, abs=0.2)
+    # 0.5 mm point noise: the centre within 2 mm.
+    assert np.linalg.norm(tee.centroid - [2.0, 0, 0]) < 0.002
+    assert tee.to_dict()["type"] == "tee" and n1 <= tee.keyframe < n2
+
+
+def test_junction_at_the_end_of_the_run_uses_the_path():
+    poses, points, tids, kfs = _l_shaped_run(np.random.default_rng(1))
+    sections = [SectionReport(0, 0, 89, "cylinder"), SectionReport(1, 90, len(poses) - 1, "cylinder",
+                                                                   kind="junction", linked=True)]
+    mapped = map_sections(sections, kfs, poses, points, tids, R)
+    (tee,) = map_junctions(sections, mapped, poses)
+    assert tee.method == "path" and np.isnan(tee.angle_deg)
