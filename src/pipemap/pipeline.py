@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from pipemap.backend.network_map import MappedJunction, MappedSection, map_junctions, map_sections
+from pipemap.backend.network_map import MappedJunction, MappedSection, map_junctions, map_sections, wall_pieces
 from pipemap.backend.sparse_ply import write_sparse_ply
 from pipemap.backend.straight import StraightResult, StraightVO
 from pipemap.config import Settings
@@ -49,6 +49,7 @@ class NetworkResult:
     junctions: list[MappedJunction]
     keyframes: list[Keyframe]
     seconds: dict
+    wall_pieces: list[dict]  # run.json "wall_pieces": the straight pieces of wall the maps sample
 
 
 @dataclass
@@ -103,9 +104,12 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     sections = map_sections(result.sections, vo.keyframes, result.poses, result.points, result.point_tracks,
                             dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m)
     junctions = map_junctions(result.sections, sections, result.poses)
+    # World = the first keyframe's camera frame (x right, y down): 12 o'clock is its -y.
+    up = -result.poses[0, :3, 1] if len(result.poses) else np.array([0.0, -1.0, 0.0])
+    pieces = wall_pieces(sections, junctions, up)
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
-    return NetworkResult(result, sections, junctions, vo.keyframes, seconds)
+    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces)
 
 
 def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
@@ -149,6 +153,7 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
                            axes_gap_m=round(j.gap_m, 5), first_keyframe=j.first, last_keyframe=j.last)
                       for j in net.junctions],
         "junction_clusters": [list(c) for c in classes.clusters],
+        "wall_pieces": net.wall_pieces,
         "problems": problems,
         "windows": [w.to_dict() for w in result.windows],
         "seconds": {k: round(v, 3) for k, v in seconds.items()},

@@ -176,5 +176,33 @@ def map_junctions(sections, mapped: list[MappedSection], poses: np.ndarray) -> l
     return out
 
 
-__all__ = ["MappedSection", "MappedJunction", "map_sections", "map_junctions", "axes_meeting_point",
+__all__ = ["MappedSection", "MappedJunction", "map_sections", "map_junctions", "axes_meeting_point", "wall_pieces",
            "section_points", "STRAIGHT_THROUGH_DEG"]
+
+
+def wall_pieces(mapped: list[MappedSection], junctions: list[MappedJunction], up) -> list[dict]:
+    """The straight pieces of pipe wall the appearance map and unrolled images sample: each straight
+    section's fitted cylinder from its start (or the tee centre before it, plus one radius so the
+    tee's far wall is covered) to its end (or the tee centre after it, plus one radius). `up` is the
+    world direction of 12 o'clock. Returned as the run.json "wall_pieces" records
+    {name, start, end, radius, up, unroll}."""
+    before = {j.after: j for j in junctions if j.after is not None}
+    after = {j.before: j for j in junctions if j.before is not None}
+    out = []
+    for m in mapped:
+        cyl = m.cylinder
+        if cyl is None:
+            continue
+        h0, h1 = m.start_h, m.end_h
+        sign = 1.0 if h1 >= h0 else -1.0
+        if m.number in before:
+            h0 = float(cyl.axial(before[m.number].centroid)) - sign * cyl.radius
+        if m.number in after:
+            h1 = float(cyl.axial(after[m.number].centroid)) + sign * cyl.radius
+        if abs(h1 - h0) < 2 * cyl.radius * 0.25:
+            continue
+        start = cyl.origin + h0 * cyl.direction
+        end = cyl.origin + h1 * cyl.direction
+        out.append({"name": f"S{m.number}", "start": start.round(6).tolist(), "end": end.round(6).tolist(),
+                    "radius": cyl.radius, "up": [float(v) for v in up], "unroll": True})
+    return out
