@@ -24,14 +24,14 @@ from pathlib import Path
 import numpy as np
 
 from pipemap.backend import BundleProblem, Observations
-from pipemap.backend.straight import run_straight
 from pipemap.config import load_settings
 from pipemap.dataset import load_dataset
 from pipemap.evaluation import evaluate
 from pipemap.frontend import track_frames
 from pipemap.geometry.cylinder import fit_cylinder
 from pipemap.output import result_folder
-from pipemap.pipeline import write_results
+from pipemap.frontend.classification import SequenceClass
+from pipemap.pipeline import FrontEndResult, map_network, write_results
 from pipemap.sim.simulate import simulate
 from pipemap.sim.sparse_window import RADIUS, make_pipe_window
 
@@ -50,12 +50,18 @@ def dataset(args) -> Path:
 def run_case(ds, keyframes, frontend_s, overrides, out: Path) -> dict:
     settings = load_settings(overrides=overrides)
     t = time.perf_counter()
-    res = run_straight(keyframes, ds.camera, ds.radius_m, settings)
+    n = len(ds)
+    # A straight pipe: every frame straight (the classification is measured by bench_classification).
+    straight = np.zeros(n, bool)
+    front = FrontEndResult(keyframes, SequenceClass(np.arange(n), np.zeros(n), straight, straight), n,
+                           {"frontend": frontend_s})
+    net = map_network(front, ds, settings)
+    res = net.straight
     seconds = {"frontend": frontend_s, "straight_relative": res.seconds["relative"],
                "straight_windows": res.seconds["windows"], "straight_total": time.perf_counter() - t}
     shutil.rmtree(out, ignore_errors=True)
     with result_folder(out) as tmp:
-        write_results(tmp, ds, len(ds), res, settings, seconds)
+        write_results(tmp, ds, front, net, settings, seconds)
     m = evaluate(out, ds.root)
     fwd = m.distance.forward
     return {
