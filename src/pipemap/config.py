@@ -81,6 +81,8 @@ class BundleSettings(_Section):
     outlier_passes: int = Field(3, ge=0, description="iterations at which MAD outlier removal runs")
     max_iterations: int = Field(20, gt=0)
     tee_fit_length_m: float = Field(1.0, gt=0, description="length of straight pipe fitted each side of a tee")
+    tee_model: bool = Field(True, description="join the straight sections through each tee with the two-cylinder "
+                            "model SBA (III-D); off: the VO's chaining and the end cylinders' meeting point")
 
 
 class StraightVOSettings(_Section):
@@ -99,8 +101,28 @@ class StraightVOSettings(_Section):
 class LoopClosureSettings(_Section):
     """Loop closure by pose-graph optimisation (fisheye paper III-E)."""
 
-    enabled: bool = True
-    candidates_per_section: int = Field(10, gt=0)
+    enabled: bool = Field(True, description="close loops where the route revisits a straight section")
+    candidates_per_section: int = Field(10, gt=0, description="pose pairs per revisited section (paper: 15 in all)")
+    # Which sections are one pipe visited twice, and which poses pair up (the paper counts turns).
+    same_pipe_angle_deg: float = Field(5.0, gt=0, description="axes of one pipe's visits differ by less than this")
+    same_pipe_offset_radii: float = Field(2.0, gt=0, description="... and lie closer than this many radii apart "
+                                          "(distinct parallel pipes are at least 2 apart)")
+    min_overlap_m: float = Field(0.2, ge=0, description="... and overlap along the axis by at least this much")
+    pairing_tolerance_m: float = Field(0.03, gt=0, description="a pair's distances to the tee, l_i and l_j, "
+                                       "differ by less than this")
+    # Relative pose of a pair (what the paper leaves open).
+    match_ratio: float = Field(0.8, gt=0, le=1, description="SIFT nearest / second-nearest distance ratio, both ways")
+    sift_size_px: float = Field(8.0, gt=0, description="SIFT keypoint size at 640 px wide (scales with the width)")
+    min_inliers: int = Field(20, gt=5, description="fewer matches agreeing with the metric pose: no edge")
+    wall_window_radii: float = Field(2.5, gt=0, description="wall points within this many radii along the pipe "
+                                     "of the camera carry the metric scale")
+    min_sigma_m: float = Field(0.001, ge=0, description="added to an edge's translation sigma (wall-fit error)")
+    min_sigma_deg: float = Field(0.02, ge=0, description="added to an edge's rotation sigma")
+    # The pose graph.
+    odometry_sigma_m: float = Field(0.01, gt=0, description="odometry translation sigma after one metre (per sqrt m)")
+    odometry_sigma_deg: float = Field(0.5, gt=0, description="odometry rotation sigma after one metre (per sqrt m)")
+    robust_kernel: Literal["huber", "cauchy", "none"] = Field("huber", description="on loop-closure edges")
+    kernel_width: float = Field(2.0, gt=0, description="kernel threshold in standard deviations of an edge")
 
 
 class AppearanceSettings(_Section):
@@ -109,6 +131,8 @@ class AppearanceSettings(_Section):
     spacing_m: float = Field(0.002, gt=0, description="point spacing on the fitted cylinders")
     min_theta_deg: float = Field(50.0, ge=0, description="use pixels with colatitude above this ...")
     max_theta_deg: float = Field(90.0, gt=0, description="... and below this")
+    edge_taper_deg: float = Field(5.0, ge=0, description="samples are weighted up from 0 over this many degrees inside "
+                                  "either colatitude limit, so that keyframe band edges leave no seams (0: plain mean)")
     unrolled_px_m: float = Field(0.002, gt=0, description="metres per pixel of unrolled wall images")
 
 
@@ -144,9 +168,23 @@ class SparseSettings(_Section):
     ambiguity_ratio: float = Field(0.8, gt=0, le=1, description="SIFT ambiguity ratio with mutual check")
     keyframe_min_matches: int = Field(100, gt=0)
     keyframe_max_flow_px: float = Field(20.0, gt=0)
-    offset_batch_keyframes: int = Field(10, gt=0, description="keyframes of the initial offset C_X, C_Y batch")
+    offset_batch_keyframes: int = Field(10, gt=1, description="keyframes of the initial offset C_X, C_Y batch")
     refine_every: int = Field(50, gt=0, description="N: 6-DOF sliding refinement over the previous 2N")
     refine_passes: int = Field(2, gt=0)
+    # What the report leaves open.
+    gain_correct: bool = Field(True, description="divide by the dataset's gain mask when it has one (section 3.2)")
+    initial_offset_m: tuple[float, float] = Field(
+        (0.0, 0.0), description="start of the C_X, C_Y batch (the report measured it by hand; 0 = on the axis)")
+    ransac_threshold_px: float = Field(1.0, gt=0, description="five-point RANSAC inlier threshold (px at the centre)")
+    min_inliers: int = Field(15, gt=5, description="fewer RANSAC inliers: the keyframe pair keeps no matches")
+    outlier_mad_k: float = Field(3.0, gt=0, description="an estimate farther than k x 1.4826 x the median distance "
+                                 "from its point's mean leaves the point (a mismatch)")
+    outlier_floor_m: float = Field(2e-4, ge=0, description="... but never closer than this")
+    lm_iterations: int = Field(20, gt=0, description="Levenberg-Marquardt iterations per pose")
+    refine_at_end: bool = Field(True, description="also refine the last 2N keyframes when the run ends")
+    unrolled_px_m: float | None = Field(None, gt=0, description="metres per pixel of the unrolled wall; "
+                                        "None = the wall footprint of the first keyframe's centre pixel")
+    unrolled_max_px: int = Field(8000, gt=16, description="longest side of the unrolled image (coarser pixels beyond)")
 
 
 class GainMaskSettings(_Section):

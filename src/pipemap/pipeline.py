@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import yaml
 
+from pipemap.backend.join import join_sections
 from pipemap.backend.network_map import MappedJunction, MappedSection, map_junctions, map_sections, wall_pieces
 from pipemap.backend.sparse_ply import write_sparse_ply
 from pipemap.backend.straight import StraightResult, StraightVO
@@ -50,6 +51,7 @@ class NetworkResult:
     keyframes: list[Keyframe]
     seconds: dict
     wall_pieces: list[dict]  # run.json "wall_pieces": the straight pieces of wall the maps sample
+    joins: list = field(default_factory=list)  # JoinReport per junction (the tee-model solves)
 
 
 @dataclass
@@ -104,12 +106,17 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     sections = map_sections(result.sections, vo.keyframes, result.poses, result.points, result.point_tracks,
                             dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m)
     junctions = map_junctions(result.sections, sections, result.poses)
+    joins = []
+    if settings.bundle.tee_model:
+        poses, points, joins = join_sections(result, vo.keyframes, sections, junctions, dataset.camera,
+                                             dataset.radius_m, settings)
+        result.poses, result.points = poses, points
     # World = the first keyframe's camera frame (x right, y down): 12 o'clock is its -y.
     up = -result.poses[0, :3, 1] if len(result.poses) else np.array([0.0, -1.0, 0.0])
     pieces = wall_pieces(sections, junctions, up)
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
-    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces)
+    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces, joins)
 
 
 def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
@@ -137,6 +144,7 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
     problems = [f"section {m.number}: {p}" for m in net.sections for p in m.problems]
     problems += [f"{j.id}: only one straight section beside it, centre from the camera path" for j in net.junctions
                  if j.method == "path"]
+    problems += [f"{r.junction}: {r.status}" for r in net.joins if r.status != "tee-model"]
     run = {
         "version": __version__,
         "stage": "run",
@@ -154,6 +162,7 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
                       for j in net.junctions],
         "junction_clusters": [list(c) for c in classes.clusters],
         "wall_pieces": net.wall_pieces,
+        "tee_solves": [r.to_dict() for r in net.joins],
         "problems": problems,
         "windows": [w.to_dict() for w in result.windows],
         "seconds": {k: round(v, 3) for k, v in seconds.items()},

@@ -90,6 +90,7 @@ class StraightResult:
     sections: list[SectionReport]
     windows: list[WindowReport]
     seconds: dict = field(default_factory=dict)  # "relative" (scale + triangulation), "windows"
+    active: list[np.ndarray] = field(default_factory=list)  # per keyframe: observations not rejected as outliers
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
@@ -376,7 +377,7 @@ class StraightVO:
             np.array([k.timestamp for k in self.keyframes], float),
             np.array([k.index for k in self.keyframes], np.int64),
             poses, self._X[tids].copy(), tids, list(self.sections), list(self.windows),
-            {"relative": self._t_rel, "windows": self._t_win})
+            {"relative": self._t_rel, "windows": self._t_win}, [a.copy() for a in self.active])
 
 
 def run_straight(keyframes, camera: CameraModel, radius: float, settings: Settings | None = None) -> StraightResult:

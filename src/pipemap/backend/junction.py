@@ -1,0 +1,409 @@
+"""Bundle adjustment of a T-intersection with the two-cylinder tee model (fisheye paper III-D).
+
+The red section ends at pose P_r, the blue one starts at P_b; each was mapped on its own, and C_r,
+C_b are cylinders fitted to their ends relative to P_r and P_b (`fit_end_cylinders`). This solve
+optimises the poses P_T of the tee span between them, the points and the tee parameters
+Phi = (zeta_r, l_r, zeta_b, l_b, phi) (`pipemap.geometry.tee`), minimising the cost of eq. 2-6:
+
+    eps = sum_obs huber_px(|u' - u|) + tau * sum_points huber_m(d_i),
+
+d_i being the signed distance of point i to the wall of the cylinder it is assigned to: the one whose
+surface is nearer (|d| smallest), re-assigned at the start of every stage between outlier passes.
+Both cylinders are infinite in the model, so the branch's cylinder continued past I crosses the far
+wall of the pipe that runs through the junction; when the points show which pipe that is, the branch
+cylinder is cut at I for the assignment (`JunctionProblem.through_pipe`).
+The red side is held: P_r and any `fixed` poses. P_b and any `attached` poses (the blue section's
+first keyframes, whose poses relative to P_b are known from its own solve) move with Phi as
+T_wc(P_r) Q(Phi) S_j, S_j being their initial pose relative to P_b; their observations tie the blue
+side in. The red cylinder is fixed with P_r; the blue one follows Phi (its world place is
+T_wc(P_r) inv(C_r) D(Phi)), so the tee's cylinder terms constrain Phi as well as the points.
+
+As in `pipemap.backend.bundle`: Huber costs by iteratively re-weighted Levenberg-Marquardt with
+analytic Jacobians, the points eliminated by the Schur complement (Phi is the small global block),
+and MAD outlier passes between stages on the Huber-weighted signed reprojection errors.
+Pose updates are right perturbations (rho, phi) in camera axes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from pipemap.backend.bundle import Observations
+from pipemap.backend.end_cylinders import fit_end_cylinder, fit_end_cylinders
+from pipemap.backend.robust import huber_cost, huber_weights, mad_inliers
+from pipemap.backend.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
+from pipemap.camera.base import CameraModel
+from pipemap.errors import PipemapError
+from pipemap.geometry.cylinder import Cylinder, CylinderFit
+from pipemap.geometry.rotations import skew
+from pipemap.geometry.se3 import as_rt, compose, invert, retract, to_matrix, world_to_camera
+from pipemap.geometry.tee import TeeModel, adjoint_of_inverse
+
+_FTOL = 1e-6  # as in bundle.py: the final stage stops below this relative decrease ...
+_STAGE_FTOL = 1e-3  # ... and a stage before an outlier pass at this one
+_PHI_RIDGE = 1e-9  # keeps the reduced system definite when nothing observes some part of Phi
+_THROUGH_MIN_POINTS = 20  # points beyond the junction that show a pipe running on through it
+
+
+@dataclass
+class JunctionState:
+    R: np.ndarray  # (N, 3, 3) T_wc of every camera (attached ones follow `model`)
+    t: np.ndarray  # (N, 3)
+    points: np.ndarray  # (M, 3)
+    model: TeeModel
+
+
+@dataclass
+class JunctionResult:
+    poses: np.ndarray  # (N, 4, 4) T_wc: held poses unchanged, the tee span solved, attached ones moved with the tee
+    points: np.ndarray  # (M, 3)
+    model: TeeModel  # Phi (canonical: phi in [0, pi)) with C_r, C_b relative to P_r, P_b
+    intersection: np.ndarray  # (3,) I in the world
+    blue_pose: np.ndarray  # (4, 4) the new T_wc of P_b
+    blue_transform: np.ndarray  # (4, 4) world transform that takes the blue section's initial poses to the solved ones
+    on_blue: np.ndarray  # (M,) bool: point assigned to the blue cylinder (final assignment)
+    through: str | None  # the pipe taken to run on through the junction ("red", "blue") or None
+    inliers: np.ndarray  # (K,) bool per observation
+    point_inliers: np.ndarray  # (M,) bool: seen in at least two inlier observations
+    cost_history: list[float]
+    iterations: int
+    time_s: float
+    rms_px: float  # RMS reprojection error of the inlier observations
+    cylinder_rms_m: float  # RMS distance of the inlier points to their cylinder
+    converged: bool
+    outlier_counts: list[int] = field(default_factory=list)
+
+    @property
+    def params(self) -> np.ndarray:
+        return self.model.params
+
+
+def _local_params(cyl, R, t, what: str):
+    """(eq. 4 parameters relative to the end pose (R, t), radius or None). A world `Cylinder` is taken in the
+    frame of the poses; a `CylinderFit`'s parameters are relative to its own reference pose, which is the
+    end pose (`fit_end_cylinder`), whatever frame its section was mapped in."""
+    if isinstance(cyl, CylinderFit):
+        return np.array(cyl.params, float), cyl.cylinder.radius
+    if isinstance(cyl, Cylinder):
+        return cyl.local_params(R, t), cyl.radius
+    p = np.asarray(cyl, float).reshape(-1)
+    if p.shape != (4,) or not np.all(np.isfinite(p)):
+        raise ValueError(f"the {what} cylinder must be a Cylinder, a CylinderFit or 4 finite parameters")
+    return p, None
+
+
+class JunctionProblem:
+    """One T-intersection solve; `solve()` runs it. See the module docstring.
+
+    poses: (N, 4, 4) T_wc initial guesses (or an (R, t) pair); points (M, 3); observations: `Observations`
+    or a (camera, point, pixels) triple.
+    red / blue: C_r, C_b as eq. 4 parameters relative to P_r / P_b; as `CylinderFit`s from
+    `fit_end_cylinder` (parameters relative to their reference pose, taken to be P_r / P_b, so each section
+    may have been mapped in its own frame); or as world `Cylinder`s in the frame of `poses` (expressed
+    relative to the initial poses[red_pose] / poses[blue_pose]).
+    fixed: further held poses (the red section's); attached: further poses carried with P_b (the blue
+    section's).
+    through: which pipe runs on through the junction ("red", "blue"), None for the paper's plain
+    nearest-surface assignment, or "auto" to decide from the initial points (`through_pipe`).
+    model: a starting Phi (a `TeeModel` or 5 numbers); by default it comes from the initial P_r, P_b and
+    the cylinders.
+    """
+
+    def __init__(self, camera: CameraModel, poses, points, observations, red, blue, *, red_pose: int,
+                 blue_pose: int, fixed=(), attached=(), radius: float | None = None, model=None,
+                 cylinder_points: np.ndarray | None = None, through: str | None = "auto", tau: float = 2.5e5,
+                 huber_px: float = 1.0, huber_m: float = 0.005, mad_k: float = 3.0, outlier_passes: int = 3,
+                 max_iterations: int = 20):
+        self.camera = camera
+        R, t = as_rt(poses)
+        X = np.array(points, dtype=float)
+        if R.ndim != 3 or X.ndim != 2 or X.shape[1] != 3:
+            raise ValueError(f"expected poses (N, 4, 4) and points (M, 3), got {R.shape[:-2]} poses, points {X.shape}")
+        obs = observations if isinstance(observations, Observations) else Observations(*observations)
+        N, M = len(R), len(X)
+        if len(obs) and (obs.camera.min() < 0 or obs.camera.max() >= N or obs.point.min() < 0 or obs.point.max() >= M):
+            raise ValueError("observation indices out of range")
+        self.obs, self.N, self.M = obs, N, M
+        self.red_index, self.blue_index = int(red_pose), int(blue_pose)
+        fixed_mask = np.zeros(N, bool)
+        fixed_mask[[self.red_index, *fixed]] = True
+        att_mask = np.zeros(N, bool)
+        att_mask[[self.blue_index, *attached]] = True
+        if np.any(fixed_mask & att_mask):
+            raise ValueError("a pose cannot be both held with P_r and attached to P_b")
+        self.fixed = fixed_mask
+        self.free_index = np.full(N, -1)
+        free = ~fixed_mask & ~att_mask
+        self.free_index[free] = np.arange(int(free.sum()))
+        self.n_free = int(free.sum())
+        self.attached = np.flatnonzero(att_mask)
+        self.attached_index = np.full(N, -1)
+        self.attached_index[self.attached] = np.arange(len(self.attached))
+        self.tau, self.huber_px, self.huber_m = float(tau), float(huber_px), float(huber_m)
+        self.mad_k, self.outlier_passes, self.max_iterations = float(mad_k), int(outlier_passes), int(max_iterations)
+        self.cylinder_points = np.ones(M, bool) if cylinder_points is None else np.asarray(cylinder_points, bool)
+
+        Rr, tr, Rb, tb = R[self.red_index], t[self.red_index], R[self.blue_index], t[self.blue_index]
+        red_p, r1 = _local_params(red, Rr, tr, "red")
+        blue_p, r2 = _local_params(blue, Rb, tb, "blue")
+        r = radius if radius is not None else (r1 if r1 is not None else r2)
+        if r is None:
+            raise PipemapError("the junction solve needs the pipe radius when the cylinders are given as parameters")
+        if model is None:
+            tee = TeeModel.from_poses((Rr, tr), (Rb, tb), red_p, blue_p, r)
+        elif isinstance(model, TeeModel):
+            tee = TeeModel(model.params, red_p, blue_p, r)
+        else:
+            tee = TeeModel(model, red_p, blue_p, r)
+        # Attached poses relative to P_b, and how a perturbation of Q moves each of them.
+        self.blue_initial = to_matrix(Rb, tb)
+        S_R, S_t = compose(*invert(Rb, tb), R[self.attached], t[self.attached])
+        self.S_R, self.S_t = S_R, S_t
+        self.S_adjoint = np.stack([adjoint_of_inverse((a, b)) for a, b in zip(S_R, S_t)])
+        self.initial = self._attach(JunctionState(R, t, X, tee))
+        if through not in ("auto", "red", "blue", None):
+            raise ValueError(f"through must be 'auto', 'red', 'blue' or None, got {through!r}")
+        self.through = None
+        self.through = self.through_pipe(self.initial) if through == "auto" else through
+
+    @classmethod
+    def from_settings(cls, camera, poses, points, observations, red, blue, settings, **kwargs) -> "JunctionProblem":
+        """tau, the Huber thresholds, mad_k, outlier_passes and max_iterations from `Settings.bundle`."""
+        b = getattr(settings, "bundle", settings)
+        opts = dict(tau=b.tau, huber_px=b.huber_px, huber_m=b.huber_m, mad_k=b.mad_k,
+                    outlier_passes=b.outlier_passes, max_iterations=b.max_iterations)
+        opts.update(kwargs)
+        return cls(camera, poses, points, observations, red, blue, **opts)
+
+    # -- state ----------------------------------------------------------------------------------
+
+    def _attach(self, state: JunctionState) -> JunctionState:
+        """Place P_b and the attached poses from P_r and Phi."""
+        R, t = state.R.copy(), state.t.copy()
+        Rb, tb = as_rt(state.model.blue_pose((R[self.red_index], t[self.red_index])))
+        R[self.attached], t[self.attached] = compose(Rb, tb, self.S_R, self.S_t)
+        return JunctionState(R, t, state.points, state.model)
+
+    def _step(self, state: JunctionState, delta) -> JunctionState:
+        dc, dx, dp = delta
+        pose_delta = np.zeros((self.N, 6))
+        pose_delta[self.free_index >= 0] = dc
+        R, t = retract(state.R, state.t, pose_delta)
+        model = state.model.with_params(state.model.params + dx)
+        return self._attach(JunctionState(R, t, state.points + dp, model))
+
+    # -- residuals and Jacobians -------------------------------------------------------------------
+
+    def assign(self, state: JunctionState) -> np.ndarray:
+        """(M,) bool: the point's nearer cylinder surface is the blue one; with a known through pipe, the
+        branch's cylinder ends at I (see `through_pipe`)."""
+        red_pose = self._red_pose(state)
+        d_red, d_blue = state.model.distances(state.points, red_pose, jacobians=False)
+        on_blue = np.abs(d_blue) < np.abs(d_red)
+        if self.through is not None:
+            a_red, a_blue = state.model.axial(state.points, red_pose)
+            if self.through == "red":  # the blue pipe is the branch: nothing of it lies behind I
+                on_blue &= a_blue >= 0
+            else:
+                on_blue |= a_red > 0
+        return on_blue
+
+    def through_pipe(self, state: JunctionState) -> str | None:
+        """Which pipe runs on through the junction: "red", "blue" or None (not seen, or both).
+
+        Evidence: points on a cylinder's wall and off the other's, beyond the junction on that cylinder's
+        far side (more than 1.5 radii past I). The branch's cylinder continued past I crosses the through
+        pipe's far wall, where the nearest-surface rule alone would pull wall points seen at grazing angles
+        onto it."""
+        red_pose = self._red_pose(state)
+        d_red, d_blue = state.model.distances(state.points, red_pose, jacobians=False)
+        a_red, a_blue = state.model.axial(state.points, red_pose)
+        r, tol = state.model.radius, 4 * self.huber_m
+        seen = np.bincount(self.obs.point, minlength=self.M) > 0
+        red = int(np.sum(seen & (a_red > 1.5 * r) & (np.abs(d_red) < tol) & (np.abs(d_blue) > tol)))
+        blue = int(np.sum(seen & (a_blue < -1.5 * r) & (np.abs(d_blue) < tol) & (np.abs(d_red) > tol)))
+        if max(red, blue) >= _THROUGH_MIN_POINTS and max(red, blue) >= 4 * min(red, blue):
+            return "red" if red > blue else "blue"
+        return None
+
+    def _red_pose(self, state):
+        return state.R[self.red_index], state.t[self.red_index]
+
+    def reprojection(self, state: JunctionState) -> np.ndarray:
+        cam, pt = self.obs.camera, self.obs.point
+        Xc = world_to_camera(state.R[cam], state.t[cam], state.points[pt])
+        return self.camera.project(Xc)[0] - self.obs.pixels
+
+    def cylinder_distance(self, state: JunctionState, on_blue: np.ndarray) -> np.ndarray:
+        d_red, d_blue = state.model.distances(state.points, self._red_pose(state), jacobians=False)
+        return np.where(on_blue, d_blue, d_red)
+
+    def cost(self, state: JunctionState, inliers: np.ndarray, on_blue: np.ndarray) -> float:
+        e = self.reprojection(state)[inliers]
+        c = float(huber_cost(np.linalg.norm(e, axis=1), self.huber_px).sum())
+        if self.tau > 0:
+            on = (np.bincount(self.obs.point[inliers], minlength=self.M) > 0) & self.cylinder_points
+            d = self.cylinder_distance(state, on_blue)[on]
+            c += self.tau * float(huber_cost(np.abs(d), self.huber_m).sum())
+        return c
+
+    def normal_equations(self, state: JunctionState, stage: "_Stage", on_blue: np.ndarray) -> NormalEquations:
+        """IRLS-weighted Gauss-Newton blocks: free cameras, Phi (the global block), points."""
+        st = stage
+        Rc = state.R[st.cam]
+        Xc = world_to_camera(Rc, state.t[st.cam], state.points[st.pt])
+        uv, Jproj, _ = self.camera.project_jacobian(Xc)
+        e = uv - self.obs.pixels[st.inliers]
+        w = huber_weights(np.linalg.norm(e, axis=1), self.huber_px)
+        J_pose = np.concatenate([-Jproj, Jproj @ skew(Xc)], axis=2)  # (K, 2, 6)
+        J_point = Jproj @ np.swapaxes(Rc, 1, 2)
+        wJp = w[:, None, None] * J_point
+        V = st.to_point(np.swapaxes(wJp, 1, 2) @ J_point)
+        gp = st.to_point(np.einsum("kai,ka->ki", wJp, e))
+        on = st.on
+        wJc = w[on, None, None] * J_pose[on]
+        U = st.schur.to_cam(np.swapaxes(wJc, 1, 2) @ J_pose[on])
+        gc = st.schur.to_cam(np.einsum("kai,ka->ki", wJc, e[on]))
+        W = np.swapaxes(wJc, 1, 2) @ J_point[on]
+        # Observations by attached cameras depend on Phi through Q.
+        JQ = state.model.q_jacobian()[0]  # (6, 5)
+        a = st.att
+        J_tee = J_pose[a] @ (self.S_adjoint[self.attached_index[st.cam[a]]] @ JQ)  # (Ka, 2, 5)
+        wJt = w[a, None, None] * J_tee
+        Ux = wJt.reshape(-1, 5).T @ J_tee.reshape(-1, 5)
+        gx = wJt.reshape(-1, 5).T @ e[a].reshape(-1)
+        Wx = st.to_point_att(np.swapaxes(wJt, 1, 2) @ J_point[a])
+        if self.tau > 0:
+            d_red, d_blue, Jr_X, Jb_X, Jb_phi = state.model.distances(state.points, self._red_pose(state))
+            d = np.where(on_blue, d_blue, d_red)
+            Jd_X = np.where(on_blue[:, None], Jb_X, Jr_X)
+            Jd_phi = np.where(on_blue[:, None], Jb_phi, 0.0)
+            wd = np.where(st.active & self.cylinder_points, self.tau * huber_weights(np.abs(d), self.huber_m), 0.0)
+            wJd = wd[:, None] * Jd_X
+            V += wJd[:, :, None] * Jd_X[:, None, :]
+            gp += d[:, None] * wJd
+            Ux += (wd[:, None] * Jd_phi).T @ Jd_phi
+            gx += Jd_phi.T @ (wd * d)
+            Wx += Jd_phi[:, :, None] * wJd[:, None, :]
+        # Points without inlier observations are frozen: an identity block with no gradient.
+        V[~st.active] = np.eye(3)
+        gp[~st.active] = 0.0
+        Wx[~st.active] = 0.0
+        eq = NormalEquations(U, gc, V, gp, W, st.schur.obs_cam, st.schur.obs_pt, Ux, gx, Wx)
+        n = 6 * self.n_free + 5
+        eq.H_extra = np.zeros((n, n))
+        eq.H_extra[np.arange(6 * self.n_free, n), np.arange(6 * self.n_free, n)] = _PHI_RIDGE * (1.0 + np.abs(Ux).max())
+        eq.g_extra = np.zeros(n)
+        return eq
+
+    # -- the solver -------------------------------------------------------------------------------
+
+    def _reject(self, state: JunctionState, inliers: np.ndarray) -> np.ndarray:
+        e = self.reprojection(state)
+        a = np.linalg.norm(e, axis=1)
+        weighted = np.sqrt(huber_weights(a, self.huber_px))[:, None] * e
+        return mad_inliers(weighted, self.mad_k, reference=inliers, floor=self.huber_px) & np.all(np.isfinite(e), 1)
+
+    def solve(self) -> JunctionResult:
+        """Levenberg-Marquardt in stages separated by MAD outlier passes and cylinder re-assignment."""
+        # As in bundle.py: threaded BLAS only stalls on the small reduced system.
+        with threadpool_limits(1, user_api="blas"):
+            return self._solve()
+
+    def _solve(self) -> JunctionResult:
+        t0 = time.perf_counter()
+        state = self.initial
+        inliers = np.all(np.isfinite(self.obs.pixels), axis=1)
+        on_blue = self.assign(state)
+        cost = self.cost(state, inliers, on_blue)
+        history, counts = [cost], []
+        lam, iterations, passes, settled = 1e-4, 0, 0, False
+        converged = False
+        while True:
+            last = settled or passes >= self.outlier_passes
+            tol = _FTOL if last else _STAGE_FTOL
+            budget = self.max_iterations - iterations - (0 if last else self.outlier_passes - passes)
+            stage = _Stage(self, inliers)
+            converged = False
+            for _ in range(max(budget, 1)):
+                if iterations >= self.max_iterations:
+                    break
+                eq = self.normal_equations(state, stage, on_blue)
+                accepted = False
+                while lam < 1e12:
+                    delta = solve_damped(eq, stage.schur, lam)
+                    if delta is not None:
+                        trial = self._step(state, delta)
+                        c = self.cost(trial, inliers, on_blue)
+                        if np.isfinite(c) and c < cost:
+                            accepted = True
+                            break
+                    lam *= 10.0
+                iterations += 1
+                if not accepted:
+                    converged = True
+                    history.append(cost)
+                    break
+                small = cost - c <= tol * cost
+                state, cost, lam = trial, c, max(lam / 3.0, 1e-12)
+                history.append(cost)
+                if small:
+                    converged = True
+                    break
+            if last:
+                break
+            new = self._reject(state, inliers)
+            new_blue = self.assign(state)
+            passes += 1
+            counts.append(int((~new).sum()))
+            settled = bool(np.array_equal(new, inliers) and np.array_equal(new_blue, on_blue))
+            inliers, on_blue = new, new_blue
+            cost = self.cost(state, inliers, on_blue)
+            lam = max(lam, 1e-4)
+        return self._result(state, inliers, on_blue, history, iterations, time.perf_counter() - t0, converged, counts)
+
+    def _result(self, state, inliers, on_blue, history, iterations, seconds, converged, counts) -> JunctionResult:
+        e = self.reprojection(state)[inliers]
+        rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if len(e) else float("nan")
+        point_in = np.bincount(self.obs.point[inliers], minlength=self.M) >= 2
+        d = self.cylinder_distance(state, on_blue)[point_in & self.cylinder_points]
+        cyl_rms = float(np.sqrt(np.mean(d**2))) if d.size else float("nan")
+        red_pose = self._red_pose(state)
+        poses = to_matrix(state.R, state.t)
+        blue = poses[self.blue_index]
+        return JunctionResult(poses, state.points.copy(), state.model.canonical(), state.model.intersection(red_pose),
+                              blue, blue @ np.linalg.inv(self.blue_initial), on_blue, self.through, inliers,
+                              point_in, history, iterations, seconds, rms, cyl_rms, converged, counts)
+
+
+class _Stage:
+    """Index structure of one inlier set: free-camera, attached-camera and all observations."""
+
+    def __init__(self, problem: JunctionProblem, inliers: np.ndarray):
+        self.inliers = inliers
+        self.cam, self.pt = problem.obs.camera[inliers], problem.obs.point[inliers]
+        f = problem.free_index[self.cam]
+        self.on = f >= 0
+        self.att = problem.attached_index[self.cam] >= 0
+        self.active = np.bincount(self.pt, minlength=problem.M) > 0
+        self.to_point = BlockSummer(self.pt, problem.M)
+        self.to_point_att = BlockSummer(self.pt[self.att], problem.M)
+        self.schur = SchurStructure(f[self.on], self.pt[self.on], problem.n_free, problem.M)
+
+
+def solve_junction(camera: CameraModel, poses, points, observations, red, blue, *, red_pose: int, blue_pose: int,
+                   settings=None, **kwargs) -> JunctionResult:
+    """Build a `JunctionProblem` (tau, Huber thresholds and outlier passes from `Settings.bundle` when
+    given) and solve it. See `JunctionProblem` for the arguments."""
+    kwargs.update(red_pose=red_pose, blue_pose=blue_pose)
+    if settings is not None:
+        return JunctionProblem.from_settings(camera, poses, points, observations, red, blue, settings, **kwargs).solve()
+    return JunctionProblem(camera, poses, points, observations, red, blue, **kwargs).solve()
+
+
+__all__ = ["JunctionProblem", "JunctionResult", "JunctionState", "solve_junction", "fit_end_cylinder",
+           "fit_end_cylinders"]
