@@ -1,0 +1,199 @@
+"""Sparse cylinder-constrained VO (2010 report section 5) and its unrolled wall image (section 6.1).
+
+Region Harris keypoints with SIFT descriptors are matched between keyframes, cleaned by five-point
+RANSAC, placed on the wall of a pipe of known radius, and the keyframe poses estimated against the
+S(g) sums: one degree of freedom per keyframe, a batch for the first camera's offset from the axis,
+six degrees of freedom in a sliding window (sparse_odometry.py has the schedule).
+
+Only perspective (pinhole) cameras, as in the report: a fisheye dataset is refused with a clear
+error (the fisheye pipeline handles those). World frame of the results = the first keyframe's
+camera frame (x down the pipe, z towards the wall the camera looks at), as for the dense methods;
+run.json and the unrolled image's sidecar give the estimated pipe axis in that frame.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from pipemap.camera.pinhole import PinholeCamera
+from pipemap.config import Settings
+from pipemap.dataset import Dataset, load_dataset
+from pipemap.errors import PipemapError
+from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
+from pipemap.straight.sparse_geometry import E_H
+from pipemap.straight.sparse_keyframes import KeyframeSelector
+from pipemap.straight.sparse_odometry import SparseOdometry
+from pipemap.straight.unroll import UnrolledWall, centre_footprint_m, footprint, to_png, unroll
+from pipemap.trajectory import Trajectory, write_tum
+
+SPARSE_METHOD = "sparse-cylinder"
+
+
+@dataclass
+class SparseResult:
+    indices: np.ndarray  # (K,) image index of every keyframe
+    rotations_pipe: np.ndarray  # (K, 3, 3) camera -> pipe frame
+    centres_pipe: np.ndarray  # (K, 3) camera centres (X, Y, h) in the pipe frame
+    offset: np.ndarray  # (C_X, C_Y) of the first keyframe after the batch of eq. 45-49
+    offset_rms_px: float
+    trajectory: Trajectory  # keyframes in the first keyframe's camera frame
+    frames: int
+    unrolled: UnrolledWall | None
+    seconds: dict = field(default_factory=dict)
+
+
+def to_first_camera(R: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pipe-frame poses -> poses in the first camera's frame: T_c0^-1 T_k."""
+    R0, C0 = R[0], C[0]
+    return np.einsum("ji,kjl->kil", R0, R), (C - C0) @ R0
+
+
+def _keyframe_images(dataset: Dataset, indices: np.ndarray, gain_correct: bool) -> Iterator[np.ndarray]:
+    wanted = set(int(i) for i in indices)
+    if dataset.image_paths is not None:
+        for i in indices:
+            yield dataset.read(int(i), gain_correct=gain_correct).image
+        return
+    for frame in dataset.frames(gain_correct=gain_correct):  # a video: one pass, no seeking
+        if frame.index in wanted:
+            yield frame.image
+
+
+def _require_pinhole(dataset: Dataset) -> None:
+    if not isinstance(dataset.camera, PinholeCamera):
+        raise PipemapError(
+            f"sparse-cylinder VO needs a perspective (pinhole) camera looking at the wall; the {dataset.camera.model} "
+            "camera is a fisheye model, which the 2010 report's sparse method does not handle (use the fisheye pipeline)",
+            dataset.yaml_path, "camera.model")
+
+
+def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
+               progress: Callable[[int, int], None] | None = None) -> SparseResult:
+    """Sparse VO on a dataset of a straight pipe seen by a perspective camera looking at the wall;
+    writes trajectory.tum (keyframes), frames.csv, run.json and unrolled/sparse_000.{png,json} into
+    `out_dir` atomically. progress(done, total) after every frame."""
+    settings = settings or Settings()
+    sp = settings.sparse
+    dataset = load_dataset(dataset_path)
+    _require_pinhole(dataset)
+    camera, radius = dataset.camera, dataset.radius_m
+    total = len(dataset)
+    start = time.perf_counter()
+    with result_folder(Path(out_dir)) as tmp:
+        selector = KeyframeSelector(camera, sp, settings.seed)
+        odometry = SparseOdometry(camera, radius, sp)
+        t_features = t_motion = 0.0
+        n = 0
+        for frame in dataset.frames(gain_correct=sp.gain_correct):
+            t0 = time.perf_counter()
+            links = list(selector.push(frame.index, frame.image))
+            t1 = time.perf_counter()
+            for link in links:
+                odometry.add(link)
+            t_features += t1 - t0
+            t_motion += time.perf_counter() - t1
+            n += 1
+            if progress is not None:
+                progress(n, total)
+        if n == 0:
+            raise PipemapError("no images in the dataset", dataset.root)
+        t1 = time.perf_counter()
+        for link in selector.finish():
+            odometry.add(link)
+        if not odometry.keyframes:
+            odometry.start(selector.first)
+        odometry.finish()
+        t_motion += time.perf_counter() - t1
+        idx, R, C = odometry.poses()
+        Rw, Cw = to_first_camera(R, C)
+        traj = Trajectory(idx / dataset.fps, Cw, Rw)
+
+        t2 = time.perf_counter()
+        wall = _unrolled(dataset, camera, radius, idx, R, C, sp)
+        t_unroll = time.perf_counter() - t2
+
+        t3 = time.perf_counter()
+        axis_origin = (np.array([0.0, 0.0, C[0, 2]]) - C[0]) @ R[0]  # the axis point beside the first camera
+        axis_dir = E_H @ R[0]
+        write_tum(tmp / "trajectory.tum", traj, header=(
+            "pipemap sparse VO (sparse-cylinder): every keyframe's T_wc in metres; world = first keyframe's camera "
+            f"frame; pipe axis through {_fmt(axis_origin)} along {_fmt(axis_dir)}"))
+        is_key = np.zeros(n, bool)
+        is_key[idx] = True
+        lines = ["index,keyframe,label"] + [f"{i},{int(k)},straight" for i, k in enumerate(is_key)]
+        atomic_write_text(tmp / "frames.csv", "\n".join(lines) + "\n")
+        (tmp / "unrolled").mkdir()
+        atomic_write_bytes(tmp / "unrolled" / "sparse_000.png", to_png(wall.image))
+        atomic_write_text(tmp / "unrolled" / "sparse_000.json",
+                          json.dumps(_sidecar(wall, radius, axis_origin, axis_dir, len(idx)), indent=2) + "\n")
+        from pipemap import __version__
+
+        seconds = {"features": t_features, "motion": t_motion, "unroll": t_unroll,
+                   "write": time.perf_counter() - t3}
+        seconds["total"] = time.perf_counter() - start
+        off = odometry.offset
+        offset = np.asarray(C[0, :2], float)
+        h = C[:, 2]
+        run = {
+            "version": __version__,
+            "stage": "sparse",
+            "method": SPARSE_METHOD,
+            "input": str(dataset.root),
+            "settings": settings.to_dict(),
+            "gain_corrected": bool(sp.gain_correct and dataset.has_gain_mask),
+            "pipe_radius_m": radius,
+            "frames": n,
+            "keyframes": len(idx),
+            "frames_per_second": n / max(t_features + t_motion, 1e-9),
+            "camera_offset_m": {"C_X": float(offset[0]), "C_Y": float(offset[1]),
+                                "batch_rms_px": None if off is None else off.rms_px,
+                                "batch_pairs": None if off is None else off.pairs},
+            "pipe_axis": {"origin": axis_origin.tolist(), "direction": axis_dir.tolist(),
+                          "frame": "first keyframe's camera frame"},
+            "distance_along_pipe_m": float(h.max() - h.min()),
+            "keyframes_without_constraints": odometry.unconstrained,
+            "seconds": {k: round(v, 3) for k, v in seconds.items()},
+        }
+        atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
+    return SparseResult(idx, R, C, offset, np.nan if off is None else off.rms_px, traj, n, wall, seconds)
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{x:.6f}" for x in v) + ")"
+
+
+def _unrolled(dataset: Dataset, camera, radius: float, idx, R, C, sp) -> UnrolledWall:
+    bounds = np.array([footprint(camera, r, c, radius) for r, c in zip(R, C)])
+    lo, hi = bounds.min(axis=0), bounds.max(axis=0)
+    box = np.array([lo[0], hi[1], lo[2], hi[3]])
+    mpp = sp.unrolled_px_m or centre_footprint_m(camera, R[0], C[0], radius)
+    mpp = max(mpp, max(box[1] - box[0], box[3] - box[2]) / (sp.unrolled_max_px - 1))
+    views = ((img, r, c) for img, r, c in zip(_keyframe_images(dataset, idx, sp.gain_correct), R, C))
+    return unroll(views, camera, radius, box, mpp)
+
+
+def _sidecar(wall: UnrolledWall, radius: float, origin, direction, keyframes: int) -> dict:
+    return {
+        "image": "sparse_000.png",
+        "kind": "sparse-unrolled",
+        "method": SPARSE_METHOD,
+        "metres_per_pixel": wall.metres_per_pixel,
+        "pipe_radius_m": radius,
+        "axis": {"origin": [float(x) for x in origin], "direction": [float(x) for x in direction]},
+        "h_of_pixel_0_0_m": wall.h0,
+        "rho_of_pixel_0_0_m": wall.rho0,
+        "size": [int(wall.image.shape[1]), int(wall.image.shape[0])],
+        "keyframes": keyframes,
+        "note": ("columns run along the axis: h = h_of_pixel_0_0_m + column * metres_per_pixel, metres from "
+                 "`axis.origin` along `axis.direction` (world = the trajectory's frame, the first keyframe's camera); "
+                 "rows run around the wall: rho = r * phi = rho_of_pixel_0_0_m + row * metres_per_pixel, phi = 0 "
+                 "where the first camera looks (up), increasing clockwise seen looking along +axis, so the image "
+                 "shows the wall from outside the pipe; grey = mean of the gain-corrected keyframes that see the "
+                 "wall (report section 6.1), 0 = unseen"),
+    }

@@ -1,0 +1,132 @@
+"""Keyframe poses from the S(g) sums (2010 report sections 5.3.1 and 5.3.3).
+
+- One degree of freedom (eq. 40-44): a new keyframe keeps the previous keyframe's rotation and
+  offset and moves by dh along the axis; Levenberg-Marquardt finds the dh whose wall points best
+  agree with the stored estimates of the same points (eq. 42).
+- Six degrees of freedom (5.3.3): every N keyframes each of the previous 2N (never the first,
+  which fixes the frame) is refined in turn: its own estimates are taken out of S(g), its pose is
+  optimised on eq. 42 over all six degrees of freedom, and its new estimates are put back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from pipemap.geometry.se3 import retract
+from pipemap.straight.sparse_geometry import E_H, wall_coords, wall_offset_jacobian, wall_points
+from pipemap.straight.sparse_sums import WallSums
+
+
+@dataclass
+class KeyframeState:
+    """One keyframe: its image index, keypoints (pixels, bearings, global indices) and pose."""
+
+    index: int
+    uv: np.ndarray  # (N, 2)
+    bearings: np.ndarray  # (N, 3)
+    gid: np.ndarray  # (N,)
+    R: np.ndarray  # camera -> pipe axes
+    C: np.ndarray  # camera centre in the pipe frame
+    hr: np.ndarray = field(default=None)  # (N, 2) estimates currently in S(g); NaN where none
+
+    def estimates(self, radius: float) -> np.ndarray:
+        X, valid = wall_points(self.R, self.C, self.bearings, radius)
+        hr = wall_coords(np.where(valid[:, None], X, 0.0), radius)
+        hr[~valid] = np.nan
+        return hr
+
+
+def levenberg_marquardt(evaluate: Callable, apply: Callable, state, iterations: int = 20,
+                        tolerance: float = 1e-12):
+    """Minimise |r|^2 over a state updated by `apply(state, step)`; evaluate(state) -> (r, J).
+
+    Marquardt's damping of the normal equations' diagonal; a step is kept only when it lowers the
+    cost. Returns (state, final cost, iterations)."""
+    r, J = evaluate(state)
+    cost = float(r @ r)
+    lam = 1e-4
+    it = 0
+    for it in range(1, iterations + 1):
+        H = J.T @ J
+        g = J.T @ r
+        accepted = False
+        while lam < 1e12:
+            A = H + lam * np.diag(np.diag(H) + 1e-12 * (np.trace(H) / len(H) + 1e-30))
+            try:
+                step = np.linalg.solve(A, -g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            new = apply(state, step)
+            r_new, J_new = evaluate(new)
+            c_new = float(r_new @ r_new)
+            if np.isfinite(c_new) and c_new <= cost:
+                done = cost - c_new <= tolerance * max(cost, 1e-300)
+                state, r, J, cost, accepted = new, r_new, J_new, c_new, True
+                lam = max(lam * 0.1, 1e-12)
+                break
+            lam *= 10
+        if not accepted or done:
+            break
+    return state, cost, it
+
+
+def _one_dof_residuals(kf: KeyframeState, sums: WallSums, radius: float, used: np.ndarray):
+    def evaluate(dh):
+        C = kf.C + dh[0] * E_H
+        X, valid = wall_points(kf.R, C, kf.bearings[used], radius)
+        hr, J_hr = wall_coords(X, radius, jacobian=True)
+        J_x = wall_offset_jacobian(X, kf.R, kf.bearings[used]) @ E_H  # (M, 3)
+        r, J, _ = sums.residuals(kf.gid[used], hr, np.einsum("nij,nj->ni", J_hr, J_x)[:, :, None])
+        return r, J
+    return evaluate
+
+
+def estimate_one_dof(kf: KeyframeState, sums: WallSums, radius: float, iterations: int = 20) -> tuple[float, int]:
+    """Eq. 40-44: move kf.C along the axis by the dh that minimises eq. 42; returns (dh, points used)."""
+    used = sums.n(kf.gid) > 0
+    if used.sum() < 1:
+        return 0.0, 0
+    dh, _, _ = levenberg_marquardt(_one_dof_residuals(kf, sums, radius, used), lambda s, d: s + d,
+                                   np.zeros(1), iterations)
+    kf.C = kf.C + dh[0] * E_H
+    return float(dh[0]), int(used.sum())
+
+
+def refine_six_dof(kf: KeyframeState, sums: WallSums, radius: float, iterations: int = 20) -> int:
+    """5.3.3 for one keyframe: its estimates leave S(g), its pose is optimised (6 DOF), they return."""
+    if kf.hr is not None:
+        sums.add(kf.gid, kf.hr, -1.0)
+    used = sums.n(kf.gid) > 0
+    if used.sum() >= 3:
+        b = kf.bearings[used]
+        g = kf.gid[used]
+
+        def evaluate(pose):
+            X, valid, J_x = wall_points(pose[0], pose[1], b, radius, jacobian=True)
+            hr, J_hr = wall_coords(X, radius, jacobian=True)
+            r, J, _ = sums.residuals(g, hr, J_hr @ J_x)
+            return r, J
+
+        (kf.R, kf.C), _, _ = levenberg_marquardt(evaluate, lambda p, d: retract(p[0], p[1], d), (kf.R, kf.C),
+                                                 iterations)
+    kf.hr = kf.estimates(radius)
+    sums.add(kf.gid, kf.hr)
+    return int(used.sum())
+
+
+def gate_outliers(kf: KeyframeState, sums: WallSums, hr: np.ndarray, mad_k: float, floor_m: float) -> np.ndarray:
+    """Estimates farther from their point's mean than max(mad_k x 1.4826 MAD, floor_m): mismatches
+    that passed RANSAC. Returns their mask; the caller gives them new global indices."""
+    used = sums.n(kf.gid) > 0
+    d = np.full(len(kf.gid), 0.0)
+    d[used] = np.linalg.norm(hr[used] - sums.means(kf.gid[used]), axis=1)
+    d[~np.all(np.isfinite(hr), axis=1)] = np.inf
+    if used.sum() < 3:
+        return used & ~np.isfinite(d)
+    med = np.median(d[used])
+    limit = max(mad_k * 1.4826 * med, floor_m)
+    return used & (d > limit)

@@ -1,0 +1,105 @@
+"""The sparse VO state machine (2010 report 5.3): keyframes in, poses in the pipe frame out.
+
+Each new keyframe inherits the global indices of its RANSAC-inlier matches with the previous
+keyframe (new indices for the rest), gets a one-degree-of-freedom pose (5.3.1), has estimates far
+from their point's mean cut from the point (mismatches that RANSAC let through), and adds its
+estimates to S(g). When the batch of the first `offset_batch_keyframes` keyframes is complete,
+their common offset (C_X, C_Y) and heights are optimised on image reprojection (5.3.2) and their
+estimates in S(g) recomputed. Every `refine_every` keyframes the previous 2N are refined with six
+degrees of freedom, `refine_passes` times (5.3.3); the end of the run gets the same treatment.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipemap.camera import CameraModel
+from pipemap.config import SparseSettings
+from pipemap.straight.sparse_geometry import initial_pose
+from pipemap.straight.sparse_keyframes import KeyframeLink, View
+from pipemap.straight.sparse_motion import KeyframeState, estimate_one_dof, gate_outliers, refine_six_dof
+from pipemap.straight.sparse_offset import OffsetBatch, OffsetResult, optimise_offset
+from pipemap.straight.sparse_sums import WallSums
+
+
+class SparseOdometry:
+    def __init__(self, camera: CameraModel, radius: float, sparse: SparseSettings):
+        self.camera = camera
+        self.radius = float(radius)
+        self.sparse = sparse
+        self.sums = WallSums()
+        self.keyframes: list[KeyframeState] = []
+        self.offset: OffsetResult | None = None
+        self.refined_at = 0  # last keyframe a at which the sliding refinement ran
+        self.unconstrained = 0  # keyframes without a single point seen before (pose kept)
+
+    def start(self, view: View) -> None:
+        R, C = initial_pose(*self.sparse.initial_offset_m)
+        kf = KeyframeState(view.index, view.keypoints.uv, view.bearings, self.sums.new_ids(len(view.bearings)), R, C)
+        kf.hr = kf.estimates(self.radius)
+        self.sums.add(kf.gid, kf.hr)
+        self.keyframes.append(kf)
+
+    def add(self, link: KeyframeLink) -> None:
+        if not self.keyframes:
+            self.start(link.previous)
+        prev = self.keyframes[-1]
+        cur = link.current
+        gid = np.full(len(cur.bearings), -1)
+        gid[link.pairs[:, 1]] = prev.gid[link.pairs[:, 0]]
+        fresh = gid < 0
+        gid[fresh] = self.sums.new_ids(int(fresh.sum()))
+        kf = KeyframeState(cur.index, cur.keypoints.uv, cur.bearings, gid, prev.R.copy(), prev.C.copy())
+        _, used = estimate_one_dof(kf, self.sums, self.radius, self.sparse.lm_iterations)
+        if used == 0:
+            self.unconstrained += 1
+        hr = kf.estimates(self.radius)
+        out = gate_outliers(kf, self.sums, hr, self.sparse.outlier_mad_k, self.sparse.outlier_floor_m)
+        if out.any():
+            kf.gid[out] = self.sums.new_ids(int(out.sum()))
+            estimate_one_dof(kf, self.sums, self.radius, self.sparse.lm_iterations)
+            hr = kf.estimates(self.radius)
+        kf.hr = hr
+        self.sums.add(kf.gid, kf.hr)
+        self.keyframes.append(kf)
+        a = len(self.keyframes) - 1
+        if self.offset is None and len(self.keyframes) == self.sparse.offset_batch_keyframes:
+            self.optimise_offset()
+        if a % self.sparse.refine_every == 0:
+            self.refine(a)
+
+    def optimise_offset(self) -> None:
+        """5.3.2 on the keyframes so far (the first offset_batch_keyframes)."""
+        kfs = self.keyframes
+        batch = OffsetBatch.from_keyframes([k.gid for k in kfs], [k.uv for k in kfs], [k.bearings for k in kfs])
+        heights = np.array([k.C[2] for k in kfs])
+        if len(batch) < len(kfs) + 1:
+            return
+        self.offset = optimise_offset(batch, self.camera, self.radius, kfs[0].R, kfs[0].C[:2], heights)
+        for k, h in zip(kfs, self.offset.heights):
+            self.sums.add(k.gid, k.hr, -1.0)
+            k.C = np.array([self.offset.offset[0], self.offset.offset[1], h])
+            k.hr = k.estimates(self.radius)
+            self.sums.add(k.gid, k.hr)
+
+    def refine(self, a: int) -> None:
+        """5.3.3: keyframes max(1, a - 2N + 1) .. a, one after the other, `refine_passes` times."""
+        lo = max(1, a - 2 * self.sparse.refine_every + 1)
+        for _ in range(self.sparse.refine_passes):
+            for k in range(lo, a + 1):
+                refine_six_dof(self.keyframes[k], self.sums, self.radius, self.sparse.lm_iterations)
+        self.refined_at = a
+
+    def finish(self) -> None:
+        if self.offset is None and len(self.keyframes) >= 2:
+            self.optimise_offset()
+        a = len(self.keyframes) - 1
+        if self.sparse.refine_at_end and a > self.refined_at:
+            self.refine(a)
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Image indices (K,), rotations (K, 3, 3) and centres (K, 3) of the keyframes in the pipe frame."""
+        idx = np.array([k.index for k in self.keyframes], int)
+        R = np.array([k.R for k in self.keyframes]).reshape(-1, 3, 3)
+        C = np.array([k.C for k in self.keyframes]).reshape(-1, 3)
+        return idx, R, C

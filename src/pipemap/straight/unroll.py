@@ -1,0 +1,100 @@
+"""Unrolled wall images of a straight pipe (2010 report section 6.1, Figs. 15 and 17).
+
+The wall is a grid in wall coordinates (h along the axis, rho = r phi around it; the pipe frame
+and phi convention of pipemap.straight.sparse_geometry). Each image's gain-corrected pixels are
+carried onto the grid by its pose and the cylinder: every grid cell's wall point is projected
+into the image with the calibrated camera (distortion included) and sampled with cv2.remap; the
+unrolled value is the mean over the images that see the cell (the report's simple stitching,
+which makes pose errors show as doubled or smeared texture).
+
+Grid: column j is h = h0 + j * mpp, row i is rho = rho0 + i * mpp. Rows grow with rho, i.e.
+clockwise seen looking along +h: the image shows the wall as seen from outside the pipe (a mirror
+image of the camera's own view, where wall markings read the right way round).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable
+
+import cv2
+import numpy as np
+
+from pipemap.camera import CameraModel
+from pipemap.errors import PipemapError
+from pipemap.straight.sparse_geometry import wall_coords, wall_from_coords, wall_points
+
+
+@dataclass(frozen=True)
+class UnrolledWall:
+    image: np.ndarray  # (rows, cols) float32 mean grey level, NaN where no image saw the wall
+    count: np.ndarray  # (rows, cols) images contributing to each cell
+    h0: float  # h of pixel (0, 0)
+    rho0: float  # rho of pixel (0, 0)
+    metres_per_pixel: float
+
+
+def footprint(camera: CameraModel, R: np.ndarray, C: np.ndarray, radius: float, samples: int = 16) -> np.ndarray:
+    """(h_min, h_max, rho_min, rho_max) of the wall seen through the image border of pose (R, C)."""
+    w, h = camera.width - 1, camera.height - 1
+    t = np.linspace(0.0, 1.0, samples)
+    border = np.concatenate([np.stack([t * w, 0 * t], -1), np.stack([t * w, h + 0 * t], -1),
+                             np.stack([0 * t, t * h], -1), np.stack([w + 0 * t, t * h], -1)])
+    bearings, _ = camera.unproject(border)
+    X, valid = wall_points(R, C, bearings, radius)
+    if not valid.any():
+        return np.array([C[2], C[2], 0.0, 0.0])
+    hr = wall_coords(X[valid], radius)
+    return np.array([hr[:, 0].min(), hr[:, 0].max(), hr[:, 1].min(), hr[:, 1].max()])
+
+
+def centre_footprint_m(camera: CameraModel, R: np.ndarray, C: np.ndarray, radius: float) -> float:
+    """Wall size of one pixel at the principal point of pose (R, C): range / focal length."""
+    cx, cy = camera.params[2], camera.params[3]
+    b, _ = camera.unproject(np.array([[cx, cy], [cx + 1.0, cy]]))
+    X, _ = wall_points(R, C, b, radius)
+    return float(np.linalg.norm(X[1] - X[0]))
+
+
+def unroll(views: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], camera: CameraModel, radius: float,
+           bounds: np.ndarray, metres_per_pixel: float) -> UnrolledWall:
+    """Mean of the images (image, R, C) carried onto the wall grid covering `bounds`
+    (h_min, h_max, rho_min, rho_max) at `metres_per_pixel`."""
+    mpp = float(metres_per_pixel)
+    if not mpp > 0:
+        raise PipemapError(f"unrolled pixel size must be positive, got {mpp}", key="sparse.unrolled_px_m")
+    h0, rho0 = float(np.floor(bounds[0] / mpp) * mpp), float(np.floor(bounds[2] / mpp) * mpp)
+    cols = int(np.ceil((bounds[1] - h0) / mpp)) + 1
+    rows = int(np.ceil((bounds[3] - rho0) / mpp)) + 1
+    acc = np.zeros((rows, cols), np.float32)
+    cnt = np.zeros((rows, cols), np.float32)
+    for image, R, C in views:
+        h_lo, h_hi, r_lo, r_hi = footprint(camera, R, C, radius)
+        j0, j1 = max(0, int((h_lo - h0) / mpp) - 1), min(cols, int(np.ceil((h_hi - h0) / mpp)) + 2)
+        i0, i1 = max(0, int((r_lo - rho0) / mpp) - 1), min(rows, int(np.ceil((r_hi - rho0) / mpp)) + 2)
+        if j1 <= j0 or i1 <= i0:
+            continue
+        hh, rr = np.meshgrid(h0 + mpp * np.arange(j0, j1), rho0 + mpp * np.arange(i0, i1))
+        X = wall_from_coords(np.stack([hh, rr], axis=-1), radius)
+        uv, ok = camera.project((X - C) @ R)  # R^T (X - C) row by row
+        map_u = np.where(ok, uv[..., 0], -10.0).astype(np.float32)
+        map_v = np.where(ok, uv[..., 1], -10.0).astype(np.float32)
+        tile = cv2.remap(np.asarray(image, np.float32), map_u, map_v, cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)
+        acc[i0:i1, j0:j1] += np.where(ok, tile, 0.0)
+        cnt[i0:i1, j0:j1] += ok
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan).astype(np.float32)
+    return UnrolledWall(mean, cnt.astype(np.int32), h0, rho0, mpp)
+
+
+def to_png(image: np.ndarray) -> bytes:
+    """8-bit PNG of a float image: 0.5..99.5 percentile stretched to 1..255, 0 where NaN (unseen)."""
+    ok = np.isfinite(image)
+    lo, hi = (np.percentile(image[ok], [0.5, 99.5]) if ok.any() else (0.0, 1.0))
+    out = np.zeros(image.shape, np.uint8)
+    out[ok] = np.clip((image[ok] - lo) / max(hi - lo, 1e-6) * 254 + 1, 1, 255).astype(np.uint8)
+    good, buf = cv2.imencode(".png", out)
+    if not good:
+        raise PipemapError("could not encode the unrolled image")
+    return buf.tobytes()

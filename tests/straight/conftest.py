@@ -1,0 +1,37 @@
+"""Renders of the 2010 report's pipes shared by the straight-pipe tests, made once per session."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from pipemap.sim.simulate import simulate
+
+
+def _with_gain_mask(ds, card):
+    shutil.copy(card / "gain_mask.png", ds / "gain_mask.png")
+    with open(ds / "dataset.yaml", "a") as fh:
+        fh.write("gain_mask: gain_mask.png\n")
+    return ds
+
+
+@pytest.fixture(scope="session")
+def six_inch_sparse(tmp_path_factory):
+    """80 frames of the 6-inch forward route at 320x240, 3 mm apart (about 7 px of flow per frame),
+    with the white-card gain mask of the same camera (report section 3.2)."""
+    root = tmp_path_factory.mktemp("sparse6")
+    card = simulate("white-card", root / "card", width=320, height=240, seed=1)
+    ds = simulate("paper-straight-6in", root / "six", width=320, height=240, frames=80, seed=1, route="forward",
+                  spacing_m=0.003, workers=1)
+    return _with_gain_mask(ds, card)
+
+
+
+@pytest.fixture(scope="session")
+def six_inch_sparse_result(six_inch_sparse, tmp_path_factory):
+    """run_sparse with its default settings on the 6-inch render: (result folder, SparseResult)."""
+    from pipemap.straight.sparse import run_sparse
+
+    out = tmp_path_factory.mktemp("sparse-result") / "res"
+    return out, run_sparse(six_inch_sparse, out)
