@@ -88,6 +88,12 @@ def frame_progress(label: str, keyframes: bool = False):
         yield progress
 
 
+def stage_notice(name: str) -> None:
+    """One line on stderr when a pipeline stage starts (terminal only, like the progress bars)."""
+    if err_console.is_terminal and name != "tracking":
+        err_console.print(f"[dim]{name}...[/dim]")
+
+
 def version_callback(value: bool) -> None:
     if value:
         console.print(f"pipemap {__version__}")
@@ -279,7 +285,8 @@ def track(
 def run_command(
     dataset: Path = typer.Argument(..., help="Dataset folder or its dataset.yaml."),
     out: Path = typer.Option(..., "--out", help="Result folder to create (must not exist or be empty)."),
-    method: str = typer.Option("auto", "--method", help="auto | fisheye | dense-full-search | dense-lk | dense-hybrid."),
+    method: str = typer.Option("auto", "--method",
+                               help="auto | fisheye | dense-full-search | dense-lk | dense-hybrid | sparse-cylinder."),
     config: Optional[Path] = CONFIG_OPTION,
     set_: List[str] = SET_OPTION,
 ) -> None:
@@ -294,6 +301,7 @@ def run_command(
     from pipemap.dataset import load_dataset
     from pipemap.pipeline import run_pipeline
     from pipemap.straight import DENSE_METHODS, run_dense
+    from pipemap.straight.sparse import SPARSE_METHOD, run_sparse
 
     settings = _load_settings(config, set_)
     perspective = isinstance(load_dataset(dataset).camera, PinholeCamera)
@@ -305,16 +313,23 @@ def run_command(
         console.print(f"{len(dense.indices)} frames registered ({method}) -> {out}")
         console.print(f"scale: {dense.zeta:.1f} px/m from {dense.zeta_source}", markup=False)
         return
+    if method == SPARSE_METHOD:
+        with frame_progress(method) as progress:
+            sparse = run_sparse(dataset, out, settings, progress=progress)
+        console.print(f"{sparse.frames} frames, {len(sparse.indices)} keyframes ({method}), camera offset from the axis "
+                      f"C_X {sparse.offset[0] * 1e3:.2f} mm, C_Y {sparse.offset[1] * 1e3:.2f} mm -> {out}")
+        return
     if method != "fisheye":
-        raise PipemapError(f"unknown method {method!r} (expected auto, fisheye, {', '.join(DENSE_METHODS)})", "--method")
+        raise PipemapError(f"unknown method {method!r} (expected auto, fisheye, {', '.join(DENSE_METHODS)}, "
+                           f"{SPARSE_METHOD})", "--method")
     if perspective:
         raise PipemapError("the fisheye pipeline needs a fisheye camera (polynomial or kannala_brandt); "
                            "this dataset's camera is pinhole: use a dense method", dataset)
-    with frame_progress("mapping", keyframes=True) as progress:
-        result = run_pipeline(dataset, out, settings, progress=progress)
+    with frame_progress("tracking", keyframes=True) as progress:
+        result = run_pipeline(dataset, out, settings, progress=progress, on_stage=stage_notice)
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())
     console.print(f"{result.image_count} frames, {result.keyframe_count} keyframes, "
-                  f"{len(result.straight.points)} points -> {out}  ({stages})")
+                  f"{len(result.junctions)} junctions, {len(result.straight.points)} points -> {out}  ({stages})")
 
 
 @app.command()
@@ -330,6 +345,34 @@ def evaluate(
     result = evaluate_result(result_dir, dataset_dir)
     print_tables(result, console)
     console.print(f"metrics written to {result_dir / 'metrics.json'}")
+
+
+@app.command()
+@friendly
+def demo(
+    out: Path = typer.Option(Path("pipemap-demo"), "--out", help="Folder for dataset/ and result/ (must be empty)."),
+    force: bool = typer.Option(False, "--force", help="Replace the dataset/ and result/ of an earlier demo."),
+) -> None:
+    """Simulate the demo-loop network, map it, evaluate against ground truth and write report.html."""
+    from pipemap.demo import run_demo
+
+    with frame_progress("demo: rendering, then mapping") as bar:
+        summary = run_demo(out, progress=lambda stage, done, total: bar(done, total), force=force)
+    table = Table(title=f"pipemap demo ({summary.seconds['total']:.0f} s)", show_header=False)
+    table.add_row("frames / keyframes", f"{summary.frames} / {summary.keyframes}")
+    table.add_row("time", ", ".join(f"{k} {v:.1f} s" for k, v in summary.seconds.items() if k != "total"))
+    table.add_row("path length error", "–" if summary.path_length_error_pct is None
+                  else f"{summary.path_length_error_pct:+.2f} %")
+    table.add_row("ATE RMSE (rigid)", "–" if summary.ate_rmse_m is None else f"{1000 * summary.ate_rmse_m:.1f} mm")
+    for row in summary.tee_errors:
+        table.add_row(f"tee distance {row['pair']}", f"{row['estimate_m']:.3f} m vs {row['truth_m']:.3f} m "
+                      f"({row['error_pct']:+.2f} %)")
+    if summary.appearance_points is not None:
+        table.add_row("appearance map", f"{summary.appearance_points} points")
+    console.print(table)
+    for note in summary.notes:
+        console.print(f"note: {note}", markup=False)
+    console.print(f"report: {summary.report}", markup=False)
 
 
 def run() -> None:  # pragma: no cover - console entry for `python -m pipemap`

@@ -128,6 +128,8 @@ class LoopClosureSettings(_Section):
 class AppearanceSettings(_Section):
     """Dense grey-level appearance map (fisheye paper IV-B) and unrolled wall images."""
 
+    enabled: bool = Field(True, description="write appearance.ply and unrolled/ in pipemap run")
+
     spacing_m: float = Field(0.002, gt=0, description="point spacing on the fitted cylinders")
     min_theta_deg: float = Field(50.0, ge=0, description="use pixels with colatitude above this ...")
     max_theta_deg: float = Field(90.0, gt=0, description="... and below this")

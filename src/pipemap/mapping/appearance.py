@@ -1,0 +1,324 @@
+"""Dense grey-level appearance map of the pipe wall (fisheye paper IV-B, Fig. 7).
+
+Every piece's wall is sampled on a regular (h, r*phi) grid (wall.py). Each grid point is mapped
+into every keyframe image, and its grey level is the mean of the bilinear samples over the
+keyframes that see it at a colatitude min_theta < theta < max_theta (the paper: 50..90 deg, the
+periphery of the fisheye image where its resolution is highest). Keyframe images are read
+once each, in order. Points that no keyframe sees are dropped.
+
+The mean is weighted: a sample's weight rises smoothly from 0 to 1 over `edge_taper_deg` inside
+either colatitude limit. Lighting and vignetting change strongly with colatitude, so a plain
+mean jumps wherever one more keyframe's band edge starts to count, striping the map at the
+keyframe spacing; the taper makes each keyframe's contribution fade in and out instead.
+
+Per keyframe only the grid rows that can lie in the colatitude band are projected (a window
+around the camera along each piece's axis), and a point on another piece than the camera's
+own (seen through a tee's opening) counts only if the line of sight stays inside the pipes.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+import cv2
+import numpy as np
+from plyfile import PlyData, PlyElement
+
+from pipemap.config import AppearanceSettings
+from pipemap.dataset import Dataset, Frame
+from pipemap.errors import PipemapError
+from pipemap.geometry.se3 import as_rt
+from pipemap.mapping.wall import (
+    INSIDE_MARGIN_SPACINGS,
+    WallGrid,
+    WallPiece,
+    in_line_of_sight,
+    inside_piece,
+    opening_mask,
+    point_segment_distance,
+    wall_grid,
+)
+from pipemap.mapping.unrolled import write_unrolled
+from pipemap.output import atomic_write_bytes
+
+# Wall farther from the camera than this many radii / sin(min_theta) is not sampled. In a straight
+# pipe the band ends at (r + offset) / sin(min_theta); farther wall is seen only at grazing angles
+# (down the next pipe from a tee), where one pixel covers centimetres and would blur the map.
+REACH_RADII = 2.0
+REACH_TAPER = 0.25  # fraction of the reach over which samples fade out (with edge_taper_deg > 0)
+_REMAP_WIDTH = 1024  # cv2.remap maps are kept 2-D and below its 32767 size limit
+
+
+@dataclass
+class PieceMap:
+    """The appearance of one piece: sums and counts of grey samples on its grid."""
+
+    grid: WallGrid
+    keep: np.ndarray  # (H, W) False inside another piece's opening
+    total: np.ndarray  # (H, W) float64 weighted sum of samples
+    weight: np.ndarray  # (H, W) float64 sum of weights
+    count: np.ndarray  # (H, W) int32 keyframes that saw the point
+
+    @property
+    def piece(self) -> WallPiece:
+        return self.grid.piece
+
+    @property
+    def seen(self) -> np.ndarray:
+        return self.keep & (self.weight > 0)
+
+    @property
+    def intensity(self) -> np.ndarray:
+        """(H, W) float32 mean grey level, NaN where unseen or not wall."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = (self.total / self.weight).astype(np.float32)
+        out[~self.seen] = np.nan
+        return out
+
+
+@dataclass
+class AppearanceMap:
+    pieces: list[PieceMap]
+    keyframes: int  # keyframe images used
+    projections: int  # grid points projected into keyframes
+    samples: int  # of which inside the colatitude band, the image and in sight
+    seconds: float
+    settings: AppearanceSettings = field(default_factory=AppearanceSettings)
+
+    @property
+    def points_per_second(self) -> float:
+        return self.projections / self.seconds if self.seconds > 0 else float("nan")
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The seen grid points (N, 3) and their mean grey level (N,), piece after piece."""
+        pts, vals = [], []
+        for pm in self.pieces:
+            seen = pm.seen
+            pts.append(pm.grid.points()[seen])
+            vals.append(pm.intensity[seen])
+        if not pts:
+            return np.zeros((0, 3)), np.zeros(0, np.float32)
+        return np.concatenate(pts), np.concatenate(vals)
+
+    def piece(self, name: str) -> PieceMap:
+        for pm in self.pieces:
+            if pm.piece.name == name:
+                return pm
+        raise KeyError(name)
+
+
+def _check_settings(s: AppearanceSettings) -> None:
+    if not s.min_theta_deg < s.max_theta_deg:
+        raise PipemapError(f"min_theta_deg ({s.min_theta_deg}) must be below max_theta_deg ({s.max_theta_deg})",
+                           key="appearance")
+
+
+def build_appearance(dataset: Dataset, keyframe_indices, poses_T_wc, pieces: list[WallPiece],
+                     settings: AppearanceSettings | None = None,
+                     progress: Callable[[int, int], None] | None = None) -> AppearanceMap:
+    """The appearance map of `pieces` from the keyframe images `keyframe_indices` (image indices of
+    `dataset`) at the poses `poses_T_wc` ((K, 4, 4) or an (R, t) pair, same order). Each keyframe
+    image is read once; progress(done, total) after each."""
+    settings = settings or AppearanceSettings()
+    _check_settings(settings)
+    start = time.perf_counter()
+    idx = np.asarray(keyframe_indices, dtype=np.int64).reshape(-1)
+    R, t = as_rt(poses_T_wc)
+    R, t = R.reshape(-1, 3, 3), t.reshape(-1, 3)
+    if len(R) != len(idx):
+        raise PipemapError(f"{len(idx)} keyframe indices but {len(R)} poses", key="appearance")
+    n = len(dataset)
+    if len(idx) and (idx.min() < 0 or idx.max() >= n):
+        raise PipemapError(f"keyframe index {int(idx.max() if idx.max() >= n else idx.min())} is outside the "
+                           f"dataset's {n} images", dataset.root)
+    margin = INSIDE_MARGIN_SPACINGS * settings.spacing_m
+    grids = [wall_grid(p, settings.spacing_m) for p in pieces]
+    maps = [PieceMap(g, opening_mask(g, pieces, margin), np.zeros(g.shape), np.zeros(g.shape),
+                     np.zeros(g.shape, np.int32)) for g in grids]
+    sampler = _KeyframeSampler(dataset.camera, pieces, settings)
+    order = np.argsort(idx, kind="stable")
+    done = 0
+    for frame, k in _frames_at(dataset, idx[order], order):
+        for pm in maps:
+            sampler.accumulate(pm, frame.image, R[k], t[k])
+        done += 1
+        if progress is not None:
+            progress(done, len(idx))
+    return AppearanceMap(maps, done, sampler.projections, sampler.samples, time.perf_counter() - start, settings)
+
+
+def _frames_at(dataset: Dataset, indices: np.ndarray, rows: np.ndarray) -> Iterator[tuple[Frame, int]]:
+    """(frame, pose row) for sorted image indices, each image read once (a video is streamed)."""
+    if dataset.image_paths is not None:
+        last = None
+        for i, k in zip(indices.tolist(), rows.tolist()):
+            if i != last:
+                frame = dataset.read(i)
+                last = i
+            yield frame, k
+        return
+    if not len(indices):
+        return
+    want: dict[int, list[int]] = {}
+    for i, k in zip(indices.tolist(), rows.tolist()):
+        want.setdefault(i, []).append(k)
+    for frame in dataset.frames(start=int(indices[0]), stop=int(indices[-1]) + 1):
+        for k in want.get(frame.index, ()):
+            yield frame, k
+
+
+class _KeyframeSampler:
+    """Projects grid rows into one keyframe and adds their samples to a PieceMap."""
+
+    def __init__(self, camera, pieces: list[WallPiece], settings: AppearanceSettings):
+        self.camera = camera
+        self.pieces = pieces
+        self.theta_lo = math.radians(settings.min_theta_deg)
+        self.theta_hi = math.radians(settings.max_theta_deg)
+        self.taper = math.radians(settings.edge_taper_deg)
+        self.spacing = settings.spacing_m
+        r_max = max((p.radius for p in pieces), default=0.0)
+        self.reach = REACH_RADII * r_max / math.sin(max(self.theta_lo, math.radians(15.0)))
+        self.projections = 0
+        self.samples = 0
+
+    def _rows(self, grid: WallGrid, R: np.ndarray, c: np.ndarray) -> slice:
+        """Grid rows whose points can lie in the colatitude band: a point at angle theta from the
+        optical axis is at least theta - alpha off the pipe axis (alpha: optical axis to pipe
+        axis), and at most r + d across it (d: camera to axis), so |dh| <= (r + d) / tan(theta - alpha)."""
+        p = grid.piece
+        u = p.axis
+        z = R[:, 2]
+        q = c - p.start
+        h_c = float(q @ u)
+        d = float(np.linalg.norm(q - h_c * u))
+        cos_a = float(z @ u)
+        alpha = math.acos(min(1.0, abs(cos_a)))
+        lateral = p.radius + d
+        eff = self.theta_lo - alpha
+        ahead = lateral / math.tan(eff) if eff > 1e-3 else math.inf
+        ahead = min(ahead, self.reach) + self.spacing
+        behind = ahead
+        if self.theta_hi <= math.pi / 2 and alpha < math.pi / 2 - 1e-3:
+            # points in front of the camera lie at most lateral * tan(alpha) behind it along the axis
+            behind = min(behind, lateral * math.tan(alpha) + self.spacing)
+        lo, hi = (h_c - behind, h_c + ahead) if cos_a >= 0 else (h_c - ahead, h_c + behind)
+        i0, i1 = np.searchsorted(grid.h, [lo, hi])
+        return slice(int(i0), int(i1))
+
+    def _weight(self, theta: np.ndarray, dist2: np.ndarray) -> np.ndarray:
+        """Smoothstep from 0 to 1 over the taper inside both colatitude limits and over the last
+        REACH_TAPER of the reach (never exactly 0 inside: a point seen once keeps its sample)."""
+        if self.taper <= 0:
+            return np.ones_like(theta)
+        x = np.clip(np.minimum(theta - self.theta_lo, self.theta_hi - theta) / self.taper, 0.0, 1.0)
+        y = np.clip((self.reach - np.sqrt(dist2)) / (REACH_TAPER * self.reach), 0.0, 1.0)
+        return np.maximum(x * x * (3 - 2 * x) * y * y * (3 - 2 * y), 1e-6)
+
+    def accumulate(self, pm: PieceMap, image: np.ndarray, R: np.ndarray, c: np.ndarray) -> None:
+        p = pm.piece
+        if point_segment_distance(c, p.start, p.end) - p.radius > self.reach:
+            return
+        rows = self._rows(pm.grid, R, c)
+        if rows.stop <= rows.start:
+            return
+        P = pm.grid.points(rows)
+        X = (P - c) @ R  # camera frame: X_c = R^T (X - c)
+        self.projections += X.shape[0] * X.shape[1]
+        rho = np.hypot(X[..., 0], X[..., 1])
+        theta = np.arctan2(rho, X[..., 2])
+        ok = (theta > self.theta_lo) & (theta < self.theta_hi) & pm.keep[rows]
+        dist2 = np.einsum("...i,...i->...", X, X)
+        ok &= dist2 < self.reach * self.reach
+        if not ok.any():
+            return
+        where = np.nonzero(ok)
+        uv, valid = self.camera.project(X[where])
+        if not inside_piece(c, p, 0.0, self.spacing):
+            # the camera is in another piece: the point must be in sight through an opening
+            near = [q for q in self.pieces if point_segment_distance(c, q.start, q.end) < self.reach + q.radius]
+            valid &= in_line_of_sight(c, P[where], near, self.spacing)
+        if not valid.any():
+            return
+        ii, jj = where[0][valid] + rows.start, where[1][valid]
+        values = bilinear(image, uv[valid])
+        w = self._weight(theta[where][valid], dist2[where][valid])
+        # (ii, jj) pairs are distinct within one keyframe, so fancy-index addition is exact
+        pm.total[ii, jj] += w * values
+        pm.weight[ii, jj] += w
+        pm.count[ii, jj] += 1
+        self.samples += len(values)
+
+
+def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear grey levels (N,) of `image` at pixels uv (N, 2) (OpenCV centres), via cv2.remap."""
+    n = len(uv)
+    m = -(-n // _REMAP_WIDTH) * _REMAP_WIDTH
+    mx = np.zeros(m, np.float32)
+    my = np.zeros(m, np.float32)
+    mx[:n], my[:n] = uv[:, 0], uv[:, 1]
+    out = cv2.remap(np.ascontiguousarray(image, np.float32), mx.reshape(-1, _REMAP_WIDTH), my.reshape(-1, _REMAP_WIDTH),
+                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.ravel()[:n].astype(np.float64)
+
+
+def write_appearance_ply(path: str | Path, points: np.ndarray, intensity: np.ndarray) -> None:
+    """appearance.ply: binary little-endian PLY, float32 x y z and uchar intensity, written atomically."""
+    P = np.asarray(points, float).reshape(-1, 3)
+    I = np.asarray(intensity, float).reshape(-1)
+    if len(P) != len(I):
+        raise ValueError(f"{len(P)} points but {len(I)} intensities")
+    ok = np.all(np.isfinite(P), axis=1) & np.isfinite(I)
+    P, I = P[ok], I[ok]
+    vertex = np.empty(len(P), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")])
+    vertex["x"], vertex["y"], vertex["z"] = P[:, 0], P[:, 1], P[:, 2]
+    vertex["intensity"] = np.clip(np.rint(I), 0, 255).astype(np.uint8)
+    buf = io.BytesIO()
+    PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<",
+            comments=["pipemap appearance map: wall points (metres, world frame of trajectory.tum), "
+                      "mean grey level over the keyframes"]).write(buf)
+    atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def read_appearance_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """(points (N, 3), intensity (N,) uint8) of an appearance.ply."""
+    path = Path(path)
+    try:
+        v = PlyData.read(str(path))["vertex"]
+        P = np.stack([np.asarray(v[k], float) for k in ("x", "y", "z")], axis=-1)
+        return P, np.asarray(v["intensity"], np.uint8)
+    except FileNotFoundError:
+        raise PipemapError("file not found", path) from None
+    except (KeyError, ValueError, OSError) as exc:
+        raise PipemapError(f"not an appearance PLY ({exc})", path) from None
+
+
+def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_wc, pieces: Iterable[WallPiece],
+               settings=None, progress: Callable[[int, int], None] | None = None) -> dict:
+    """appearance.ply and unrolled/ into `folder`; returns counts and seconds for run.json.
+    `settings`: the run's Settings or its AppearanceSettings."""
+    folder = Path(folder)
+    s = getattr(settings, "appearance", settings) or AppearanceSettings()
+    pieces = list(pieces)
+    amap = build_appearance(dataset, keyframe_indices, poses_T_wc, pieces, s, progress)
+    t0 = time.perf_counter()
+    points, intensity = amap.points()
+    write_appearance_ply(folder / "appearance.ply", points, intensity)
+    images = write_unrolled(folder / "unrolled", amap)
+    return {
+        "appearance_points": int(len(points)),
+        "unrolled_images": [p.name for p in images],
+        "keyframes": amap.keyframes,
+        "projections": amap.projections,
+        "points_per_second": round(amap.points_per_second, 1),
+        "seconds": {"appearance": round(amap.seconds, 3), "appearance_write": round(time.perf_counter() - t0, 3)},
+    }
+
+
+__all__ = ["PieceMap", "AppearanceMap", "build_appearance", "bilinear", "write_appearance_ply", "read_appearance_ply",
+           "write_maps", "write_unrolled"]

@@ -1,0 +1,131 @@
+"""unrolled/<name>.png: the wall of each straight piece unrolled to (h, r*phi), with a JSON beside it.
+
+Layout: columns run along the axis (h from start towards end), rows run around the wall
+starting at 12 o'clock and going anticlockwise when looking from start to end. That is the
+wall as seen from inside the pipe, so lettering on it reads unmirrored; in the wall
+coordinates of wall.py (phi clockwise) row k is phi = -k * 2 pi / rows. The JSON gives the
+metres per pixel, the piece's axis and these conventions as numbers. Grey levels 1..255 are
+the map's mean grey level; 0 marks wall that no keyframe saw.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from pipemap.errors import PipemapError
+from pipemap.output import atomic_write_bytes, atomic_write_text
+
+if TYPE_CHECKING:
+    from pipemap.mapping.appearance import AppearanceMap, PieceMap
+
+FORMAT = "pipemap-unrolled/1"
+UNSEEN = 0
+
+
+def unrolled_image(pm: "PieceMap", px_m: float) -> tuple[np.ndarray, dict]:
+    """(rows, cols) uint8 image of one piece at about px_m metres per pixel, and its sidecar dict."""
+    piece = pm.piece
+    values = pm.intensity.T  # (W around, H along)
+    n_phi = values.shape[0]
+    values = values[(-np.arange(n_phi)) % n_phi]  # rows anticlockwise from 12 o'clock
+    seen = np.isfinite(values)
+    cols = max(2, int(round(piece.length / px_m)) + 1)
+    rows = max(8, int(round(2 * np.pi * piece.radius / px_m)))
+    filled = np.where(seen, values, 0.0).astype(np.float32)
+    weight = seen.astype(np.float32)
+    if (rows, cols) != filled.shape:
+        shrink = rows < filled.shape[0] or cols < filled.shape[1]
+        interp = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
+        filled = cv2.resize(filled, (cols, rows), interpolation=interp)
+        weight = cv2.resize(weight, (cols, rows), interpolation=interp)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = filled / weight
+    ok = weight > 0.5
+    img = np.full((rows, cols), UNSEEN, np.uint8)
+    img[ok] = np.clip(np.rint(mean[ok]), 1, 255).astype(np.uint8)
+    along = piece.length / (cols - 1)
+    around = 2 * np.pi * piece.radius / rows
+    meta = {
+        "format": FORMAT,
+        "piece": piece.name,
+        "width_px": cols,
+        "height_px": rows,
+        "metres_per_pixel": float(px_m),
+        "metres_per_pixel_along": along,
+        "metres_per_pixel_around": around,
+        "axis": {"start": [float(v) for v in piece.start], "end": [float(v) for v in piece.end],
+                 "radius": piece.radius, "up": [float(v) for v in piece.up]},
+        "frame": "world frame of trajectory.tum",
+        "h_of_column_0_m": 0.0,
+        "columns": "column c is at h = h_of_column_0_m + c * metres_per_pixel_along, metres along the axis from "
+                   "start towards end",
+        "phi_of_row_0_rad": 0.0,
+        "phi_per_row_rad": -2 * np.pi / rows,
+        "rows": "row k is at phi = phi_of_row_0_rad + k * phi_per_row_rad (mod 2 pi): rows go anticlockwise looking "
+                "from start to end, so the image shows the wall as seen from inside the pipe",
+        "phi_convention": "phi = 0 at 12 o'clock (axis.up across the axis), increasing clockwise looking from start "
+                          "to end; the wall point is start + h u + radius (cos(phi) e_up + sin(phi) (u x e_up))",
+        "unseen_value": UNSEEN,
+        "seen_fraction": float(ok.mean()),
+    }
+    return img, meta
+
+
+def _stem(name: str, used: set[str]) -> str:
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "piece"
+    base, k = stem, 2
+    while stem in used:
+        stem = f"{base}-{k}"
+        k += 1
+    used.add(stem)
+    return stem
+
+
+def write_unrolled(folder: str | Path, appearance_map: "AppearanceMap", px_m: float | None = None) -> list[Path]:
+    """unrolled/<name>.png and <name>.json for every piece with `unroll` that some keyframe saw;
+    px_m defaults to the map's settings.unrolled_px_m. Returns the PNG paths."""
+    folder = Path(folder)
+    px = float(px_m if px_m is not None else appearance_map.settings.unrolled_px_m)
+    if not px > 0:
+        raise PipemapError(f"metres per pixel must be positive, got {px}", key="appearance.unrolled_px_m")
+    written: list[Path] = []
+    used: set[str] = set()
+    for pm in appearance_map.pieces:
+        if not pm.piece.unroll or not pm.seen.any():
+            continue
+        folder.mkdir(parents=True, exist_ok=True)
+        img, meta = unrolled_image(pm, px)
+        stem = _stem(pm.piece.name, used)
+        ok, png = cv2.imencode(".png", img)
+        if not ok:
+            raise PipemapError("cannot encode image", folder / f"{stem}.png")
+        meta["image"] = f"{stem}.png"
+        atomic_write_bytes(folder / f"{stem}.png", png.tobytes())
+        atomic_write_text(folder / f"{stem}.json", json.dumps(meta, indent=2) + "\n")
+        written.append(folder / f"{stem}.png")
+    return written
+
+
+def read_unrolled(png: str | Path) -> tuple[np.ndarray, dict]:
+    """An unrolled image and its sidecar."""
+    png = Path(png)
+    img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise PipemapError("cannot read image", png)
+    side = png.with_suffix(".json")
+    try:
+        meta = json.loads(side.read_text())
+    except FileNotFoundError:
+        raise PipemapError("no JSON beside the unrolled image", side) from None
+    except (OSError, ValueError) as exc:
+        raise PipemapError(f"cannot read: {exc}", side) from None
+    return img, meta
+
+
+__all__ = ["write_unrolled", "read_unrolled", "unrolled_image", "FORMAT"]
