@@ -19,12 +19,25 @@ def check_new_file(path: Path, force: bool = False) -> None:
         raise PipemapError("folder does not exist", path.parent)
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _usual_mode(path, base: int) -> None:
+    """Temporary files and folders are private (0600 / 0700); the result gets the mode a plain
+    open() or mkdir() would have given it."""
+    os.chmod(path, base & ~_umask())
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
+        _usual_mode(tmp, 0o666)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -61,6 +74,7 @@ def result_folder(out: Path) -> Iterator[Path]:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     try:
+        _usual_mode(tmp, 0o777)
         yield tmp
         if out.exists():
             out.rmdir()

@@ -6,7 +6,9 @@
    sections get cylinder-regularised sliding-window SBA, junction sections are chained through
    with the relative poses and the scale of the tracks; cylinders are fitted to the straight
    sections and their ends, and each tee centre is where the end cylinders either side meet (III-D).
-Writes trajectory.tum, junctions.yaml, sparse.ply, frames.csv and run.json.
+3. Loop closure where the route revisits a straight section (III-E).
+4. Maps: the dense grey-level appearance point cloud and unrolled wall images (IV-B).
+Writes trajectory.tum, junctions.yaml, sparse.ply, appearance.ply, unrolled/, frames.csv and run.json.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 import yaml
 
 from pipemap.backend.join import join_sections
+from pipemap.backend.revisit import RevisitReport, close_network_loops
 from pipemap.backend.network_map import MappedJunction, MappedSection, map_junctions, map_sections, wall_pieces
 from pipemap.backend.sparse_ply import write_sparse_ply
 from pipemap.backend.straight import StraightResult, StraightVO
@@ -31,6 +34,7 @@ from pipemap.frontend import FeatureTracker
 from pipemap.frontend.classification import SequenceClass, SequenceClassifier
 from pipemap.frontend.tracks import Keyframe
 from pipemap.frontend.tracks_io import write_frames_csv
+from pipemap.mapping import WallPiece, write_maps
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.trajectory import Trajectory, write_tum
 
@@ -52,6 +56,7 @@ class NetworkResult:
     seconds: dict
     wall_pieces: list[dict]  # run.json "wall_pieces": the straight pieces of wall the maps sample
     joins: list = field(default_factory=list)  # JoinReport per junction (the tee-model solves)
+    revisit: RevisitReport | None = None  # loop closure
 
 
 @dataclass
@@ -111,12 +116,28 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
         poses, points, joins = join_sections(result, vo.keyframes, sections, junctions, dataset.camera,
                                              dataset.radius_m, settings)
         result.poses, result.points = poses, points
+    revisit = RevisitReport("disabled")
+    if settings.loop_closure.enabled and len(junctions) > 1:
+        def image_of(k: int) -> np.ndarray:
+            return dataset.read(vo.keyframes[k].index).image
+
+        poses, points, revisit = close_network_loops(dataset.camera, vo.keyframes, result.poses, result.points,
+                                                     result.point_tracks, sections, junctions, image_of,
+                                                     dataset.radius_m, settings)
+        if revisit.status == "closed":
+            result.poses, result.points = poses, points
+            # The cylinders hang from the corrected poses: fit them again (the tee centres were moved).
+            sections = map_sections(result.sections, vo.keyframes, result.poses, result.points, result.point_tracks,
+                                    dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m)
+    elif len(junctions) <= 1:
+        revisit = RevisitReport("no revisit")
     # World = the first keyframe's camera frame (x right, y down): 12 o'clock is its -y.
     up = -result.poses[0, :3, 1] if len(result.poses) else np.array([0.0, -1.0, 0.0])
     pieces = wall_pieces(sections, junctions, up)
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
-    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces, joins)
+    seconds["loop_closure"] = revisit.seconds
+    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces, joins, revisit)
 
 
 def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
@@ -125,7 +146,7 @@ def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
 
 
 def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: NetworkResult, settings: Settings,
-                  seconds: dict) -> None:
+                  seconds: dict, maps: dict | None = None) -> None:
     """trajectory.tum, junctions.yaml, sparse.ply, frames.csv and run.json into `folder`."""
     t0 = time.perf_counter()
     result = net.straight
@@ -162,7 +183,9 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
                       for j in net.junctions],
         "junction_clusters": [list(c) for c in classes.clusters],
         "wall_pieces": net.wall_pieces,
+        "appearance": maps,
         "tee_solves": [r.to_dict() for r in net.joins],
+        "loop_closure": None if net.revisit is None else net.revisit.to_dict(),
         "problems": problems,
         "windows": [w.to_dict() for w in result.windows],
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
@@ -195,11 +218,18 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
         front = track_and_classify(dataset, settings, progress)
         stage("mapping")
         net = map_network(front, dataset, settings)
+        maps = None
+        if settings.appearance.enabled and net.wall_pieces:
+            stage("appearance")
+            maps = write_maps(tmp, dataset, net.straight.indices, net.straight.poses,
+                              [WallPiece.from_dict(d) for d in net.wall_pieces], settings)
         stage("writing")
         seconds = dict(front.seconds)
         seconds.update(net.seconds)
+        if maps is not None:
+            seconds.update(maps["seconds"])
         seconds["total"] = time.perf_counter() - start
-        write_results(tmp, dataset, front, net, settings, seconds)
+        write_results(tmp, dataset, front, net, settings, seconds, maps)
     return PipelineResult(Path(out_dir), front.image_count, len(net.straight.indices), net.straight, net.junctions,
                           seconds)
 

@@ -112,3 +112,19 @@ def test_wrong_frame_size_and_corrupt_image_name_the_file(tmp_path):
 def test_missing_folder(tmp_path):
     with pytest.raises(PipemapError, match="no dataset.yaml"):
         load_dataset(tmp_path)
+
+
+def test_results_are_readable_by_others(tmp_path):
+    import os
+    import stat
+
+    from pipemap.output import atomic_write_text, result_folder
+
+    old = os.umask(0o022)
+    try:
+        with result_folder(tmp_path / "out") as tmp:
+            atomic_write_text(tmp / "a.txt", "x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "out").stat().st_mode) == 0o755
+    assert stat.S_IMODE((tmp_path / "out" / "a.txt").stat().st_mode) == 0o644

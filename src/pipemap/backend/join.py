@@ -142,6 +142,7 @@ def join_sections(result: StraightResult, keyframes: list[Keyframe], sections: l
                 later_j.centroid = T[:3, :3] @ later_j.centroid + T[:3, 3]
         j.centroid = np.asarray(res.intersection, float)
         j.method = "tee-model"
+        j.through = res.through
         j.angle_deg = float(res.model.angle_deg)
         reports.append(JoinReport(j.id, "tee-model", n, len(sel), len(obs), float(res.rms_px),
                                   float(res.cylinder_rms_m), float(res.model.angle_deg), float(moved), float(angle),

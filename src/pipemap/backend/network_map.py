@@ -56,6 +56,7 @@ class MappedJunction:
     angle_deg: float  # between the two axes (nan when one side is missing)
     method: str  # "axes" | "straight-through" | "path" | "tee-model"
     gap_m: float = float("nan")  # closest-approach distance of the two axes
+    through: str | None = None  # which side's pipe runs on through the tee ("red" = before, "blue" = after)
 
     def to_dict(self) -> dict:
         return {"id": self.id, "type": "tee", "centroid": [round(float(v), 6) for v in self.centroid],
@@ -182,10 +183,12 @@ __all__ = ["MappedSection", "MappedJunction", "map_sections", "map_junctions", "
 
 def wall_pieces(mapped: list[MappedSection], junctions: list[MappedJunction], up) -> list[dict]:
     """The straight pieces of pipe wall the appearance map and unrolled images sample: each straight
-    section's fitted cylinder from its start (or the tee centre before it, plus one radius so the
-    tee's far wall is covered) to its end (or the tee centre after it, plus one radius). `up` is the
-    world direction of 12 o'clock. Returned as the run.json "wall_pieces" records
-    {name, start, end, radius, up, unroll}."""
+    section's fitted cylinder, from its first camera (or the tee before it) to its last camera (or
+    the tee after it). At a tee the pipe that runs on through it (`MappedJunction.through`, from
+    the tee solve) is extended one radius past the centre I, to its far wall; the branch starts or
+    ends at I, so that its cylinder cuts no false opening in the far wall. When the through pipe is
+    unknown both end at I. `up` is the world direction of 12 o'clock. Returned as the run.json
+    "wall_pieces" records {name, start, end, radius, up, unroll}."""
     before = {j.after: j for j in junctions if j.after is not None}
     after = {j.before: j for j in junctions if j.before is not None}
     out = []
@@ -196,9 +199,11 @@ def wall_pieces(mapped: list[MappedSection], junctions: list[MappedJunction], up
         h0, h1 = m.start_h, m.end_h
         sign = 1.0 if h1 >= h0 else -1.0
         if m.number in before:
-            h0 = float(cyl.axial(before[m.number].centroid)) - sign * cyl.radius
+            j = before[m.number]
+            h0 = float(cyl.axial(j.centroid)) - (sign * cyl.radius if j.through == "blue" else 0.0)
         if m.number in after:
-            h1 = float(cyl.axial(after[m.number].centroid)) + sign * cyl.radius
+            j = after[m.number]
+            h1 = float(cyl.axial(j.centroid)) + (sign * cyl.radius if j.through == "red" else 0.0)
         if abs(h1 - h0) < 2 * cyl.radius * 0.25:
             continue
         start = cyl.origin + h0 * cyl.direction
