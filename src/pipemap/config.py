@@ -107,6 +107,8 @@ class LoopClosureSettings(_Section):
     same_pipe_angle_deg: float = Field(5.0, gt=0, description="axes of one pipe's visits differ by less than this")
     same_pipe_offset_radii: float = Field(2.0, gt=0, description="... and lie closer than this many radii apart "
                                           "(distinct parallel pipes are at least 2 apart)")
+    same_junction_radii: float = Field(2.0, gt=0, description="a tee pass within this many radii of an earlier "
+                                       "tee's centre is a revisit of it (one entry in junctions.yaml)")
     min_overlap_m: float = Field(0.2, ge=0, description="... and overlap along the axis by at least this much")
     pairing_tolerance_m: float = Field(0.03, gt=0, description="a pair's distances to the tee, l_i and l_j, "
                                        "differ by less than this")

@@ -24,7 +24,7 @@ import yaml
 
 from pipemap.backend.join import join_sections
 from pipemap.backend.revisit import RevisitReport, close_network_loops
-from pipemap.backend.network_map import MappedJunction, MappedSection, map_junctions, map_sections, wall_pieces
+from pipemap.backend.network_map import MappedJunction, MappedSection, map_junctions, map_sections, name_junctions, wall_pieces
 from pipemap.backend.sparse_ply import write_sparse_ply
 from pipemap.backend.straight import StraightResult, StraightVO
 from pipemap.config import Settings
@@ -57,6 +57,7 @@ class NetworkResult:
     wall_pieces: list[dict]  # run.json "wall_pieces": the straight pieces of wall the maps sample
     joins: list = field(default_factory=list)  # JoinReport per junction (the tee-model solves)
     revisit: RevisitReport | None = None  # loop closure
+    tees: list[MappedJunction] = field(default_factory=list)  # distinct tees in order of first passage
 
 
 @dataclass
@@ -131,13 +132,14 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
                                     dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m)
     elif len(junctions) <= 1:
         revisit = RevisitReport("no revisit")
+    tees = name_junctions(junctions, dataset.radius_m, settings.loop_closure.same_junction_radii)
     # World = the first keyframe's camera frame (x right, y down): 12 o'clock is its -y.
     up = -result.poses[0, :3, 1] if len(result.poses) else np.array([0.0, -1.0, 0.0])
     pieces = wall_pieces(sections, junctions, up)
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
     seconds["loop_closure"] = revisit.seconds
-    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces, joins, revisit)
+    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces, joins, revisit, tees)
 
 
 def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
@@ -153,7 +155,7 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
     traj = Trajectory.from_matrices(result.indices / dataset.fps, result.poses)
     write_tum(folder / "trajectory.tum", traj,
               header="pipemap fisheye VO: keyframe T_wc in metres, world = first keyframe's camera")
-    write_junctions(folder / "junctions.yaml", net.junctions)
+    write_junctions(folder / "junctions.yaml", net.tees)
     write_sparse_ply(folder / "sparse.ply", result.points)
     classes = front.classes
     labels = classes.labels if len(classes.indices) == front.image_count else None
@@ -178,7 +180,7 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
         "lost_keyframes": sum(1 for s in result.sections[1:] if not s.linked),
         "sections": [s.to_dict() for s in result.sections],
         "straight_sections": [m.to_dict() for m in net.sections],
-        "junctions": [dict(j.to_dict(), method=j.method, angle_deg=round(j.angle_deg, 3),
+        "junction_passes": [dict(j.to_dict(), method=j.method, angle_deg=round(j.angle_deg, 3),
                            axes_gap_m=round(j.gap_m, 5), first_keyframe=j.first, last_keyframe=j.last)
                       for j in net.junctions],
         "junction_clusters": [list(c) for c in classes.clusters],
@@ -230,7 +232,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
             seconds.update(maps["seconds"])
         seconds["total"] = time.perf_counter() - start
         write_results(tmp, dataset, front, net, settings, seconds, maps)
-    return PipelineResult(Path(out_dir), front.image_count, len(net.straight.indices), net.straight, net.junctions,
+    return PipelineResult(Path(out_dir), front.image_count, len(net.straight.indices), net.straight, net.tees,
                           seconds)
 
 

@@ -178,7 +178,32 @@ def map_junctions(sections, mapped: list[MappedSection], poses: np.ndarray) -> l
 
 
 __all__ = ["MappedSection", "MappedJunction", "map_sections", "map_junctions", "axes_meeting_point", "wall_pieces",
-           "section_points", "STRAIGHT_THROUGH_DEG"]
+           "section_points", "name_junctions",
+           "STRAIGHT_THROUGH_DEG"]
+
+
+def name_junctions(junctions: list[MappedJunction], radius: float, same_radii: float = 2.0) -> list[MappedJunction]:
+    """Give every tee pass its tee's name: a pass whose centre lies within `same_radii` pipe radii of an
+    earlier tee's is a revisit of it (after loop closure the two centres differ by the residual drift,
+    far less than the spacing of distinct tees). Names T1, T2, ... follow first passage. Returns one
+    MappedJunction per distinct tee, in the order the camera first passes them, its centre the mean
+    of its passes."""
+    tees: list[list[MappedJunction]] = []
+    for j in junctions:
+        near = [t for t in tees if np.linalg.norm(t[0].centroid - j.centroid) < same_radii * radius]
+        if near:
+            near[0].append(j)
+        else:
+            tees.append([j])
+    out = []
+    for n, passes in enumerate(tees, 1):
+        for j in passes:
+            j.id = f"T{n}"
+        first = passes[0]
+        out.append(MappedJunction(first.id, np.mean([j.centroid for j in passes], axis=0), first.keyframe, first.first,
+                                  first.last, first.before, first.after, first.angle_deg, first.method, first.gap_m,
+                                  first.through))
+    return out
 
 
 def wall_pieces(mapped: list[MappedSection], junctions: list[MappedJunction], up) -> list[dict]:

@@ -92,8 +92,9 @@ def _summary(run: dict | None, frames_csv: Path) -> str:
                            ("lost_keyframes", "sections started after lost tracking")):
             if key in run:
                 rows.append([label, run[key]])
-        if isinstance(run.get("junctions"), list):
-            rows.append(["junctions", len(run["junctions"])])
+        if isinstance(run.get("junction_passes"), list):
+            passes = run["junction_passes"]
+            rows.append(["tees (passes)", f"{len({j.get('id') for j in passes})} ({len(passes)})"])
         if isinstance(run.get("wall_pieces"), list):
             rows.append(["wall pieces", len(run["wall_pieces"])])
         maps = run.get("appearance")
