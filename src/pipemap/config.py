@@ -56,6 +56,8 @@ class FrontendSettings(_Section):
     flatten_lighting: bool = Field(True, description="detect, describe and correlate on log(I) minus its local mean")
     lighting_sigma_px: float = Field(4.0, gt=0, description="scale of the local mean removed with the lighting (px at 640 wide)")
     dark_level: float = Field(12.0, ge=0, description="no features where the local mean grey level is below this")
+    contrast_limit: float = Field(16.0, ge=0, description="soft limit of the flattened image (64 x log units): "
+                                  "rims of dark openings no longer outscore the wall's corners (0: off)")
 
 
 class ClassificationSettings(_Section):
@@ -173,6 +175,12 @@ class SparseSettings(_Section):
     keyframe_min_matches: int = Field(100, gt=0)
     keyframe_max_flow_px: float = Field(20.0, gt=0)
     offset_batch_keyframes: int = Field(10, gt=1, description="keyframes of the initial offset C_X, C_Y batch")
+    offset_batch_model: Literal["bundle", "report"] = Field(
+        "bundle", description="bundle: every batch keyframe's 6-DOF pose, the wall points and the axis's offset and "
+        "tilt by bundle adjustment on the wall (sparse_batch.py); report: eqs. 45-49 as printed, all keyframes at R0")
+    offset_wall_sigma_m: float = Field(1e-4, gt=0, description="bundle batch: points may leave the wall by about this "
+                                       "per pixel of reprojection error (the stiffness of the known radius)")
+    offset_batch_iterations: int = Field(50, gt=0, description="bundle batch: Levenberg-Marquardt iterations")
     refine_every: int = Field(50, gt=0, description="N: 6-DOF sliding refinement over the previous 2N")
     refine_passes: int = Field(2, gt=0)
     # What the report leaves open.

@@ -73,7 +73,7 @@ def place_features(camera: CameraModel, image: np.ndarray, settings: Settings) -
     img = np.ascontiguousarray(image, dtype=np.float32)
     mask = valid_mask(camera, margin)
     if s.flatten_lighting:
-        img, lit = flatten_lighting(img, s.lighting_sigma_px * scale, s.dark_level)
+        img, lit = flatten_lighting(img, s.lighting_sigma_px * scale, s.dark_level, contrast_limit=s.contrast_limit)
         mask = mask & lit
         img = img + 128.0
     points, _ = detect_corners(img, mask, tuple(s.regions), s.corners_per_region, s.harris_k,

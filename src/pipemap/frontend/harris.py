@@ -43,7 +43,8 @@ def valid_mask(camera: CameraModel, margin_px: int = 0) -> np.ndarray:
     return _CACHE[key]
 
 
-def flatten_lighting(image: np.ndarray, sigma_px: float, dark_level: float = 0.0, log_offset: float = 8.0) -> tuple[np.ndarray, np.ndarray]:
+def flatten_lighting(image: np.ndarray, sigma_px: float, dark_level: float = 0.0, log_offset: float = 8.0,
+                     contrast_limit: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """The wall's texture without the robot's lighting: (log I - local mean of log I) x 64, and a lit mask.
 
     The LEDs move with the camera, so their fall-off towards the edge of the view is fixed in the
@@ -51,11 +52,17 @@ def flatten_lighting(image: np.ndarray, sigma_px: float, dark_level: float = 0.0
     epipolar geometry of forward motion cannot reject. Taking logs turns the lighting into an
     additive, slowly varying term that the local mean removes. `lit` (uint8) marks pixels whose
     local mean brightness exceeds `dark_level` (unlit openings and the black outside the image
-    circle carry only noise).
+    circle carry only noise). `contrast_limit` > 0 compresses the result softly to about that size
+    (c tanh(x / c)): the rim of a dark opening (a tee's mouth seen from the branch) is a step of
+    several log units that would otherwise outscore every wall corner of its region and fill it with
+    corners sliding along the rim, which are not points of the wall.
     """
     image = np.ascontiguousarray(image, dtype=np.float32)
     log = np.log(image + np.float32(log_offset))
     flat = (log - _local_mean(log, sigma_px)) * np.float32(64.0)
+    if contrast_limit > 0:
+        c = np.float32(contrast_limit)
+        flat = c * np.tanh(flat / c)
     lit = (_local_mean(image, sigma_px) > dark_level).astype(np.uint8)
     return flat, lit
 

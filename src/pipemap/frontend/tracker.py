@@ -93,7 +93,7 @@ class FeatureTracker:
         mask = self.mask
         if s.flatten_lighting:
             sigma = s.lighting_sigma_px * self.camera.width / 640.0
-            image, lit = flatten_lighting(image, sigma, s.dark_level)
+            image, lit = flatten_lighting(image, sigma, s.dark_level, contrast_limit=s.contrast_limit)
             mask = mask & lit
         points, _ = detect_corners(image, mask, tuple(s.regions), s.corners_per_region, s.harris_k,
                                    min_distance_px=self.s.min_distance_px, quality=self.s.harris_quality)
