@@ -98,6 +98,10 @@ class StraightVOSettings(_Section):
     fixed_overlap: int | None = Field(None, gt=0, description="hold at most this many solved poses per window (None: all)")
     min_window_points: int = Field(30, gt=0, description="fewer points: no window solve")
     min_window_keyframes: int = Field(3, gt=1)
+    max_colatitude_deg: float | None = Field(75.0, gt=0, le=180, description="window observations beyond this angle "
+                                             "from the optical axis are left out (None: all): near the lens rim the "
+                                             "image shrinks across a template and tracked corners drift inwards "
+                                             "(0.07 px at 80-90 deg at 640x480), which shortens the scale")
 
 
 class LoopClosureSettings(_Section):
@@ -181,6 +185,11 @@ class SparseSettings(_Section):
     offset_wall_sigma_m: float = Field(1e-4, gt=0, description="bundle batch: points may leave the wall by about this "
                                        "per pixel of reprojection error (the stiffness of the known radius)")
     offset_batch_iterations: int = Field(50, gt=0, description="bundle batch: Levenberg-Marquardt iterations")
+    offset_max_sigma: float = Field(0.003, gt=0, description="bundle batch: the offset counts as determined when its "
+                                    "standard deviation is within this fraction of the camera's distance to the wall "
+                                    "(that fraction is the scale error it brings)")
+    offset_measured: bool = Field(False, description="initial_offset_m was measured on the robot (as in the report): "
+                                  "kept when the batch cannot determine the offset (narrow lens, large pipe)")
     refine_every: int = Field(50, gt=0, description="N: 6-DOF sliding refinement over the previous 2N")
     refine_passes: int = Field(2, gt=0)
     # What the report leaves open.

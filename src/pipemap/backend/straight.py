@@ -124,6 +124,8 @@ class StraightVO:
         self._metric = False
         self._first_tid = 0
         self._chain_first = 0  # first keyframe of the current unbroken chain of linked sections
+        m = self.s.max_colatitude_deg
+        self._min_cos = -1.0 if m is None else float(np.cos(np.radians(m)))
         self._t_rel = 0.0
         self._t_win = 0.0
 
@@ -280,7 +282,8 @@ class StraightVO:
         ks, rows, tids, pixels = [], [], [], []
         for k in range(first, last + 1):
             kf = self.keyframes[k]
-            r = np.flatnonzero(self.active[k] & self._has[kf.track_ids] & (kf.track_ids >= self._first_tid))
+            r = np.flatnonzero(self.active[k] & self._has[kf.track_ids] & (kf.track_ids >= self._first_tid)
+                               & (kf.bearings[:, 2] >= self._min_cos))
             ks.append(np.full(len(r), k))
             rows.append(r)
             tids.append(kf.track_ids[r])
