@@ -35,3 +35,14 @@ def six_inch_sparse_result(six_inch_sparse, tmp_path_factory):
 
     out = tmp_path_factory.mktemp("sparse-result") / "res"
     return out, run_sparse(six_inch_sparse, out)
+
+
+@pytest.fixture(scope="session")
+def sixteen_inch_sparse(tmp_path_factory):
+    """80 frames of the 16-inch forward route at 320x240 (25 deg lens, camera 70 mm below the axis),
+    2 mm apart (about 5 px of flow per frame), with the white-card gain mask of the same camera."""
+    root = tmp_path_factory.mktemp("sparse16")
+    card = simulate("white-card", root / "card", width=320, height=240, seed=1, route="16in")
+    ds = simulate("paper-straight-16in", root / "sixteen", width=320, height=240, frames=80, seed=1, route="forward",
+                  spacing_m=0.002, workers=1)
+    return _with_gain_mask(ds, card)

@@ -65,7 +65,9 @@ def test_unrolled_sidecar_describes_the_axis(six_inch_sparse_result):
     side = json.loads((out / "unrolled" / "sparse_000.json").read_text())
     run = json.loads((out / "run.json").read_text())
     assert side["kind"] == "sparse-unrolled" and side["method"] == "sparse-cylinder"
-    np.testing.assert_allclose(side["axis"]["direction"], [1.0, 0.0, 0.0], atol=1e-12)  # image x of the first camera
+    # The fitted axis runs along the first camera's image x, within the crawler's wobble (0.5 deg).
+    d = np.asarray(side["axis"]["direction"])
+    assert np.linalg.norm(d) == pytest.approx(1.0) and np.degrees(np.arccos(d[0])) < 0.6
     np.testing.assert_allclose(side["axis"]["origin"], run["pipe_axis"]["origin"])
     # the axis lies about 25 mm above the first camera (towards the wall it looks at, camera +z)
     assert side["axis"]["origin"][2] == pytest.approx(0.025, abs=1.5e-3)

@@ -91,3 +91,10 @@ def wall_from_coords(hr: np.ndarray, radius: float) -> np.ndarray:
 def initial_pose(cx: float, cy: float) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 45: the first camera looks up (R0) from (C_X, C_Y, 0)."""
     return R0.copy(), np.array([cx, cy, 0.0])
+
+
+def wall_distance(R: np.ndarray, C: np.ndarray, radius: float) -> float:
+    """Distance from the camera (R, C) to the wall along its optical axis: what sets the metric scale of
+    its image motion."""
+    X, valid = wall_points(R, C, np.array([[0.0, 0.0, 1.0]]), radius)
+    return float(np.linalg.norm(X[0] - C)) if valid[0] else float("nan")

@@ -11,15 +11,33 @@ degrees of freedom, `refine_passes` times (5.3.3); the end of the run gets the s
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from pipemap.camera import CameraModel
 from pipemap.config import SparseSettings
-from pipemap.straight.sparse_geometry import initial_pose
+from pipemap.straight.sparse_batch import bundle_batch
+from pipemap.straight.sparse_geometry import initial_pose, wall_distance
 from pipemap.straight.sparse_keyframes import KeyframeLink, View
 from pipemap.straight.sparse_motion import KeyframeState, estimate_one_dof, gate_outliers, refine_six_dof
-from pipemap.straight.sparse_offset import OffsetBatch, OffsetResult, optimise_offset
+from pipemap.straight.sparse_offset import OffsetBatch, optimise_offset
 from pipemap.straight.sparse_sums import WallSums
+
+_MAX_OFFSET_FRACTION = 0.9  # a batch that puts the camera nearer the wall than this has failed
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """What the initial batch found and what the odometry kept."""
+
+    model: str  # "bundle" or "report"
+    offset: np.ndarray  # (C_X, C_Y) the batch estimated
+    rms_px: float
+    observations: int  # observations (bundle) or observation pairs (report) used
+    sigma: np.ndarray | None = None  # (2,) standard deviations of the estimate (bundle only)
+    determined: bool = True  # sigma within offset_max_sigma of the camera's distance to the wall
+    used: str = "batch"  # "batch": the poses of the batch were kept; "given": the measured initial_offset_m
 
 
 class SparseOdometry:
@@ -29,7 +47,7 @@ class SparseOdometry:
         self.sparse = sparse
         self.sums = WallSums()
         self.keyframes: list[KeyframeState] = []
-        self.offset: OffsetResult | None = None
+        self.offset: BatchSummary | None = None  # None until the batch has run
         self.refined_at = 0  # last keyframe a at which the sliding refinement ran
         self.unconstrained = 0  # keyframes without a single point seen before (pose kept)
 
@@ -69,16 +87,44 @@ class SparseOdometry:
             self.refine(a)
 
     def optimise_offset(self) -> None:
-        """5.3.2 on the keyframes so far (the first offset_batch_keyframes)."""
+        """5.3.2 on the keyframes so far (the first offset_batch_keyframes), by the chosen batch model."""
         kfs = self.keyframes
+        if self.sparse.offset_batch_model == "bundle":
+            self._bundle_batch(kfs)
+        else:
+            self._report_batch(kfs)
+
+    def _report_batch(self, kfs: list[KeyframeState]) -> None:
         batch = OffsetBatch.from_keyframes([k.gid for k in kfs], [k.uv for k in kfs], [k.bearings for k in kfs])
         heights = np.array([k.C[2] for k in kfs])
         if len(batch) < len(kfs) + 1:
             return
-        self.offset = optimise_offset(batch, self.camera, self.radius, kfs[0].R, kfs[0].C[:2], heights)
-        for k, h in zip(kfs, self.offset.heights):
+        res = optimise_offset(batch, self.camera, self.radius, kfs[0].R, kfs[0].C[:2], heights)
+        self.offset = BatchSummary("report", res.offset, res.rms_px, res.pairs)
+        self._replace_poses(kfs, [k.R for k in kfs], [np.r_[res.offset, h] for h in res.heights])
+
+    def _bundle_batch(self, kfs: list[KeyframeState]) -> None:
+        R = np.array([k.R for k in kfs])
+        C = np.array([k.C for k in kfs])
+        res = bundle_batch([k.gid for k in kfs], [k.uv for k in kfs], [k.bearings for k in kfs], R, C, self.camera,
+                           self.radius, wall_sigma_m=self.sparse.offset_wall_sigma_m,
+                           iterations=self.sparse.offset_batch_iterations)
+        if res is None or not np.hypot(*res.offset) < _MAX_OFFSET_FRACTION * self.radius:
+            return  # too little shared structure, or the batch left the pipe: keep the given start
+        # the offset sets the scale through the distance to the wall; how well the batch knows it decides
+        depth = wall_distance(res.R[0], res.C[0], self.radius)
+        determined = bool(np.hypot(*res.offset_sigma) <= self.sparse.offset_max_sigma * depth)
+        keep_given = not determined and self.sparse.offset_measured
+        self.offset = BatchSummary("bundle", res.offset, res.rms_px, res.observations, res.offset_sigma, determined,
+                                   "given" if keep_given else "batch")
+        if not keep_given:
+            self._replace_poses(kfs, res.R, res.C)
+
+    def _replace_poses(self, kfs: list[KeyframeState], R, C) -> None:
+        """New poses for the batch's keyframes; their estimates in S(g) follow."""
+        for k, r, c in zip(kfs, R, C):
             self.sums.add(k.gid, k.hr, -1.0)
-            k.C = np.array([self.offset.offset[0], self.offset.offset[1], h])
+            k.R, k.C = np.array(r, float), np.array(c, float)
             k.hr = k.estimates(self.radius)
             self.sums.add(k.gid, k.hr)
 
