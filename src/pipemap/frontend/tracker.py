@@ -121,9 +121,11 @@ class FeatureTracker:
         self._reference = max(self._reference, len(ii))
         return _Match(f, pose, ii, jj, flow, len(ii) / self._reference)
 
-    def process(self, frame: Frame) -> list[Keyframe]:
-        """Track one frame; returns the keyframes this frame completed (usually none or one)."""
-        features = self.extract(frame)
+    def process(self, frame: Frame, features: "_Features | None" = None) -> list[Keyframe]:
+        """Track one frame; returns the keyframes this frame completed (usually none or one).
+        `features`: `extract(frame)` computed beforehand (e.g. on another thread; it reads no
+        tracker state that `process` changes)."""
+        features = self.extract(frame) if features is None else features
         if self._kf_features is None:
             if len(features.keypoints) < self.s.min_inliers:
                 return []
