@@ -195,7 +195,6 @@ class StraightVO:
     def _relative_scale(self, kf: Keyframe) -> float:
         """Length of the new step, from tracks that already have 3D points (see the module docstring)."""
         prev = self.keyframes[-1]
-        sec = self.section
         last_step = np.linalg.norm(self.c[-1] - self.c[-2]) if len(self.c) - 1 > self._chain_first else 1.0
         cur = np.flatnonzero(kf.inliers)
         _, ip, ic = np.intersect1d(prev.track_ids, kf.track_ids[cur], assume_unique=True, return_indices=True)

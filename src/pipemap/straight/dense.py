@@ -26,6 +26,7 @@ from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
 from pipemap.straight.registration import Shift, full_search, hybrid, lucas_kanade
 from pipemap.straight.scale import pixels_per_metre
 from pipemap.straight.undistort import Rectifier
+from pipemap.straight.unroll import to_png
 from pipemap.trajectory import Trajectory, write_tum
 
 DENSE_METHODS = ("dense-full-search", "dense-lk", "dense-hybrid")
@@ -132,17 +133,6 @@ class Stitcher:
         return canvas.astype(np.float32), -umin
 
 
-def _to_png(canvas: np.ndarray) -> bytes:
-    ok = np.isfinite(canvas)
-    lo, hi = (np.percentile(canvas[ok], [0.5, 99.5]) if ok.any() else (0.0, 1.0))
-    img = np.zeros(canvas.shape, np.uint8)
-    img[ok] = np.clip((canvas[ok] - lo) / max(hi - lo, 1e-6) * 254 + 1, 1, 255).astype(np.uint8)
-    good, buf = cv2.imencode(".png", img)
-    if not good:
-        raise PipemapError("could not encode the stitched image")
-    return buf.tobytes()
-
-
 def _frames(dataset: Dataset, rect: Rectifier, counter: list, gain_correct: bool) -> Iterator[np.ndarray]:
     for frame in dataset.frames(gain_correct=gain_correct):
         counter.append(frame.index)
@@ -197,7 +187,7 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
         atomic_write_text(tmp / "frames.csv", "\n".join(lines) + "\n")
         (tmp / "unrolled").mkdir()
         canvas, origin = stitch.render()
-        atomic_write_bytes(tmp / "unrolled" / "dense_000.png", _to_png(canvas))
+        atomic_write_bytes(tmp / "unrolled" / "dense_000.png", to_png(canvas))
         cx, cy = rect.K[0, 2], rect.K[1, 2]
         sidecar = {
             "image": "dense_000.png",

@@ -96,5 +96,5 @@ def to_png(image: np.ndarray) -> bytes:
     out[ok] = np.clip((image[ok] - lo) / max(hi - lo, 1e-6) * 254 + 1, 1, 255).astype(np.uint8)
     good, buf = cv2.imencode(".png", out)
     if not good:
-        raise PipemapError("could not encode the unrolled image")
+        raise PipemapError("could not encode a wall image as PNG")
     return buf.tobytes()
