@@ -19,10 +19,10 @@ import argparse
 import json
 import os
 import platform
-import resource
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -46,13 +46,17 @@ def run_case(data: Path, out: Path, overrides: list[str]) -> dict:
     cmd = [sys.executable, "-m", "pipemap", "run", str(data), "--out", str(out)]
     for o in overrides:
         cmd += ["--set", o]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    with tempfile.TemporaryFile("w+") as log:
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, text=True)
+        # wait4 gives this child's own resource use (RUSAGE_CHILDREN would be the largest child so far).
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t
+        log.seek(0)
+        output = log.read().strip()
     if proc.returncode != 0:
-        raise SystemExit(f"pipemap run failed on {data}: {proc.stderr.strip() or proc.stdout.strip()}")
+        raise SystemExit(f"pipemap run failed on {data}: {output.splitlines()[-1] if output else proc.returncode}")
     m = evaluate(out, data)
     run = json.loads((out / "run.json").read_text())
     j = m.junctions
@@ -62,8 +66,8 @@ def run_case(data: Path, out: Path, overrides: list[str]) -> dict:
         "frames": run["frames"],
         "keyframes": run["keyframes"],
         "wall_s": round(wall, 2),
-        "cpu_s": round((after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), 2),
-        "peak_rss_mb": round(after.ru_maxrss / 1024, 1),  # the largest child so far (Linux: KiB)
+        "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
+        "peak_rss_mb": round(usage.ru_maxrss / 1024, 1),  # Linux: KiB
         "ms_per_frame": round(1000 * wall / run["frames"], 2),
         "frames_per_s": round(run["frames"] / wall, 2),
         "seconds": run["seconds"],
@@ -105,6 +109,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--data", default="/tmp/pipemap-bench")
     ap.add_argument("--out", default="/tmp/pipemap-bench/runs")
+    ap.add_argument("--json-out", default=None, help="where to write the JSON (default benchmarks/results/network-WxH.json)")
     args = ap.parse_args()
     size = f"{args.width}x{args.height}"
     results: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "size": size}
@@ -123,7 +128,7 @@ def main() -> None:
         results["A-half"] = r
         show("A, first half", r)
         print(f"\n   time per frame: full {results['A']['ms_per_frame']} ms, half {r['ms_per_frame']} ms")
-    out = Path(__file__).parent / "results" / f"network-{size}.json"
+    out = Path(args.json_out) if args.json_out else Path(__file__).parent / "results" / f"network-{size}.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps(results, indent=2, default=float) + "\n")
     print(f"\nwritten {out}")
