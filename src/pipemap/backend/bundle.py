@@ -34,13 +34,12 @@ from threadpoolctl import threadpool_limits
 
 from pipemap.backend.robust import huber_cost, huber_weights, mad_inliers
 from pipemap.backend.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
+from pipemap.backend.staged_lm import solve_in_stages
 from pipemap.camera.base import CameraModel
 from pipemap.geometry.cylinder import Cylinder, CylinderFit, distance_jacobians, local_distance
 from pipemap.geometry.se3 import as_rt, retract, to_matrix, world_to_camera
 from pipemap.geometry.rotations import skew
 
-_FTOL = 1e-6  # the final stage ends when an iteration lowers the cost by less than this fraction
-_STAGE_FTOL = 1e-3  # ... and a stage before an outlier pass at this fraction
 
 
 def _single_threaded_blas():
@@ -284,53 +283,20 @@ class BundleProblem:
 
     def _solve(self) -> BundleResult:
         t0 = time.perf_counter()
-        state = self.initial
-        inliers = np.all(np.isfinite(self.obs.pixels), axis=1)
-        cost = self.cost(state, inliers)
-        history, counts = [cost], []
-        lam, iterations, passes, settled = 1e-4, 0, 0, False
-        while True:
-            last = settled or passes >= self.outlier_passes
-            # Early stages only need to get close enough to tell outliers apart.
-            tol = _FTOL if last else _STAGE_FTOL
-            budget = self.max_iterations - iterations - (0 if last else self.outlier_passes - passes)
-            stage = self.stage(inliers)
-            converged = False
-            for _ in range(max(budget, 1)):
-                if iterations >= self.max_iterations:
-                    break
-                eq = self.normal_equations(state, inliers, stage)
-                accepted = False
-                while lam < 1e12:
-                    delta = solve_damped(eq, stage.schur, lam)
-                    if delta is not None:
-                        trial = self._step(state, delta)
-                        c = self.cost(trial, inliers)
-                        if np.isfinite(c) and c < cost:
-                            accepted = True
-                            break
-                    lam *= 10.0
-                iterations += 1
-                if not accepted:  # no descent direction left: a minimum
-                    converged = True
-                    history.append(cost)
-                    break
-                small = cost - c <= tol * cost
-                state, cost, lam = trial, c, max(lam / 3.0, 1e-12)
-                history.append(cost)
-                if small:
-                    converged = True
-                    break
-            if last:
-                break
-            new = self._reject(state, inliers)
-            passes += 1
-            counts.append(int((~new).sum()))
-            settled = bool(np.array_equal(new, inliers))
-            inliers = new
-            cost = self.cost(state, inliers)
-            lam = max(lam, 1e-4)
-        return self._result(state, inliers, history, iterations, time.perf_counter() - t0, converged, counts)
+        cache: dict = {}
+
+        def linearise(state, inliers):
+            if cache.get("inliers") is not inliers:  # the sparsity structure holds for a whole stage
+                cache.update(inliers=inliers, stage=self.stage(inliers))
+            return self.normal_equations(state, inliers, cache["stage"]), cache["stage"]
+
+        run = solve_in_stages(
+            self.initial, np.all(np.isfinite(self.obs.pixels), axis=1),
+            cost=self.cost, linearise=linearise, solve=lambda eq, lam: solve_damped(eq[0], eq[1].schur, lam),
+            step=self._step, reject=self._reject, same=np.array_equal, outliers=lambda inl: (~inl).sum(),
+            max_iterations=self.max_iterations, outlier_passes=self.outlier_passes)
+        return self._result(run.state, run.context, run.cost_history, run.iterations, time.perf_counter() - t0,
+                            run.converged, run.outlier_counts)
 
     def _result(self, state, inliers, history, iterations, seconds, converged, counts) -> BundleResult:
         lin = self.linearise(state, jacobians=False)

@@ -36,6 +36,7 @@ from pipemap.backend.bundle import Observations
 from pipemap.backend.end_cylinders import fit_end_cylinder, fit_end_cylinders
 from pipemap.backend.robust import huber_cost, huber_weights, mad_inliers
 from pipemap.backend.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
+from pipemap.backend.staged_lm import solve_in_stages
 from pipemap.camera.base import CameraModel
 from pipemap.errors import PipemapError
 from pipemap.geometry.cylinder import Cylinder, CylinderFit
@@ -43,8 +44,6 @@ from pipemap.geometry.rotations import skew
 from pipemap.geometry.se3 import as_rt, compose, invert, retract, to_matrix, world_to_camera
 from pipemap.geometry.tee import TeeModel, adjoint_of_inverse
 
-_FTOL = 1e-6  # as in bundle.py: the final stage stops below this relative decrease ...
-_STAGE_FTOL = 1e-3  # ... and a stage before an outlier pass at this one
 _PHI_RIDGE = 1e-9  # keeps the reduced system definite when nothing observes some part of Phi
 _THROUGH_MIN_POINTS = 20  # points beyond the junction that show a pipe running on through it
 
@@ -317,54 +316,25 @@ class JunctionProblem:
     def _solve(self) -> JunctionResult:
         t0 = time.perf_counter()
         state = self.initial
-        inliers = np.all(np.isfinite(self.obs.pixels), axis=1)
-        on_blue = self.assign(state)
-        cost = self.cost(state, inliers, on_blue)
-        history, counts = [cost], []
-        lam, iterations, passes, settled = 1e-4, 0, 0, False
-        converged = False
-        while True:
-            last = settled or passes >= self.outlier_passes
-            tol = _FTOL if last else _STAGE_FTOL
-            budget = self.max_iterations - iterations - (0 if last else self.outlier_passes - passes)
-            stage = _Stage(self, inliers)
-            converged = False
-            for _ in range(max(budget, 1)):
-                if iterations >= self.max_iterations:
-                    break
-                eq = self.normal_equations(state, stage, on_blue)
-                accepted = False
-                while lam < 1e12:
-                    delta = solve_damped(eq, stage.schur, lam)
-                    if delta is not None:
-                        trial = self._step(state, delta)
-                        c = self.cost(trial, inliers, on_blue)
-                        if np.isfinite(c) and c < cost:
-                            accepted = True
-                            break
-                    lam *= 10.0
-                iterations += 1
-                if not accepted:
-                    converged = True
-                    history.append(cost)
-                    break
-                small = cost - c <= tol * cost
-                state, cost, lam = trial, c, max(lam / 3.0, 1e-12)
-                history.append(cost)
-                if small:
-                    converged = True
-                    break
-            if last:
-                break
-            new = self._reject(state, inliers)
-            new_blue = self.assign(state)
-            passes += 1
-            counts.append(int((~new).sum()))
-            settled = bool(np.array_equal(new, inliers) and np.array_equal(new_blue, on_blue))
-            inliers, on_blue = new, new_blue
-            cost = self.cost(state, inliers, on_blue)
-            lam = max(lam, 1e-4)
-        return self._result(state, inliers, on_blue, history, iterations, time.perf_counter() - t0, converged, counts)
+        cache: dict = {}
+
+        def linearise(state, ctx):
+            if cache.get("ctx") is not ctx:  # the sparsity structure holds for a whole stage
+                cache.update(ctx=ctx, stage=_Stage(self, ctx[0]))
+            return self.normal_equations(state, cache["stage"], ctx[1]), cache["stage"]
+
+        # The context of a stage: the inlier observations and each point's cylinder, both renewed between stages.
+        run = solve_in_stages(
+            state, (np.all(np.isfinite(self.obs.pixels), axis=1), self.assign(state)),
+            cost=lambda st, ctx: self.cost(st, *ctx), linearise=linearise,
+            solve=lambda eq, lam: solve_damped(eq[0], eq[1].schur, lam), step=self._step,
+            reject=lambda st, ctx: (self._reject(st, ctx[0]), self.assign(st)),
+            same=lambda a, b: np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]),
+            outliers=lambda ctx: (~ctx[0]).sum(), max_iterations=self.max_iterations,
+            outlier_passes=self.outlier_passes)
+        inliers, on_blue = run.context
+        return self._result(run.state, inliers, on_blue, run.cost_history, run.iterations, time.perf_counter() - t0,
+                            run.converged, run.outlier_counts)
 
     def _result(self, state, inliers, on_blue, history, iterations, seconds, converged, counts) -> JunctionResult:
         e = self.reprojection(state)[inliers]
