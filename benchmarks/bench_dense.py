@@ -31,18 +31,15 @@ import shutil
 import time
 from pathlib import Path
 
+from straight_pipes import CASES as STRAIGHT_PIPES, dataset, distance_rows, distance_text
+
 from pipemap.config import Settings
 from pipemap.dataset import load_dataset
 from pipemap.evaluation import evaluate
 from pipemap.sim.presets import get_setup
-from pipemap.sim.simulate import simulate
 from pipemap.straight import DENSE_METHODS, run_dense
 
-CASES = {
-    "6in-forward": ("paper-straight-6in", "forward"),
-    "6in-forward-reverse": ("paper-straight-6in", "forward-reverse"),
-    "16in-forward-reverse": ("paper-straight-16in", "forward-reverse"),
-}
+CASES = {k: v for k, v in STRAIGHT_PIPES.items() if k != "16in-forward"}  # the report's dense rows
 REPORT = {  # Table 2 of the 2010 report: (full search, model) abs error %
     "6in-forward": {"forward": (0.799, 0.154), "note": "dataset 1 (dataset 2: 0.890, 0.725)"},
     "6in-forward-reverse": {"forward": (0.246, 0.149), "reverse": (0.837, 0.361), "total": (0.295, 0.255)},
@@ -50,42 +47,11 @@ REPORT = {  # Table 2 of the 2010 report: (full search, model) abs error %
 }
 
 
-def dataset(args, case: str) -> Path:
-    preset, route = CASES[case]
-    spacing = args.spacing_6in if preset == "paper-straight-6in" else args.spacing_16in
-    root = Path(args.data) / f"{preset}-{route}-{spacing}-s{args.seed}"
-    if not (root / "dataset.yaml").exists():
-        shutil.rmtree(root, ignore_errors=True)
-        root.parent.mkdir(parents=True, exist_ok=True)
-        simulate(preset, root, seed=args.seed, route=route, spacing_m=spacing if spacing > 0 else None,
-                 workers=os.cpu_count())
-    if not (root / "gain_mask.png").exists():
-        shutil.copy(white_card(args, preset, route), root / "gain_mask.png")
-        with open(root / "dataset.yaml", "a") as fh:
-            fh.write("gain_mask: gain_mask.png\n")
-    return root
-
-
-def white_card(args, preset: str, route: str) -> Path:
-    """The gain mask of the preset's camera (report section 3.2): the white-card preset of that robot."""
-    card = Path(args.data) / f"white-{preset}-s{args.seed}"
-    if (card / "gain_mask.png").exists():
-        return card / "gain_mask.png"
-    shutil.rmtree(card, ignore_errors=True)
-    simulate("white-card", card, seed=args.seed, route="16in" if preset == "paper-straight-16in" else "6in")
-    return card / "gain_mask.png"
-
-
 def camera_offset(case: str, seed: int) -> float:
     """The preset's camera mount: below the axis, looking up at the wall => negative offset towards the wall."""
     preset, route = CASES[case]
     drive = get_setup(preset, route=route, seed=seed).drive
     return -float(drive.offset_down_m)
-
-
-def row(d) -> dict:
-    return {"ground_truth_mm": round(d.ground_truth * 1e3, 1), "estimate_mm": round(d.estimate * 1e3, 1),
-            "error_mm": round(d.error * 1e3, 1), "abs_error_pct": round(d.abs_error_pct, 3)}
 
 
 def run_case(args, case: str, root: Path, method: str, metric: str, gain_correct: bool) -> dict:
@@ -107,14 +73,10 @@ def run_case(args, case: str, root: Path, method: str, metric: str, gain_correct
         "frames": len(ds), "gain_corrected": ds.has_gain_mask and gain_correct, "camera_offset_m": offset,
         "pixels_per_metre": round(res.zeta, 3), "rectified_size": list(res.size),
         "frames_per_second": round(len(ds) / res.seconds["registration"], 1), "seconds": round(wall, 2),
-        "forward": row(d.forward), "reverse": None if d.reverse is None else row(d.reverse),
-        "total": None if d.total is None else row(d.total), "report_abs_error_pct": REPORT[case],
+        **distance_rows(d), "report_abs_error_pct": REPORT[case],
     }
-    rev = "" if d.reverse is None else (f"  reverse {d.reverse.estimate * 1e3:7.1f} mm {d.reverse.abs_error_pct:6.3f} %"
-                                        f"  total {d.total.estimate * 1e3:6.1f} mm {d.total.abs_error_pct:6.3f} %")
     label = method if method == "dense-lk" else f"{method}/{metric}"
-    print(f"{case:21s} {label:23s} {'gain' if entry['gain_corrected'] else 'raw ':4s} gt {d.forward.ground_truth * 1e3:6.1f} mm"
-          f"  forward {d.forward.estimate * 1e3:7.1f} mm {d.forward.abs_error_pct:6.3f} %{rev}"
+    print(f"{case:21s} {label:23s} {'gain' if entry['gain_corrected'] else 'raw ':4s} {distance_text(d)}"
           f"  {entry['frames_per_second']:5.1f} frames/s", flush=True)
     return entry
 

@@ -35,18 +35,13 @@ from pathlib import Path
 
 import numpy as np
 
+from straight_pipes import CASES, dataset, distance_rows, distance_text
+
 from pipemap.config import load_settings
 from pipemap.dataset import load_dataset
 from pipemap.evaluation import evaluate
-from pipemap.sim.simulate import simulate
 from pipemap.straight.sparse import run_sparse
 
-CASES = {
-    "6in-forward": ("paper-straight-6in", "forward"),
-    "6in-forward-reverse": ("paper-straight-6in", "forward-reverse"),
-    "16in-forward-reverse": ("paper-straight-16in", "forward-reverse"),
-    "16in-forward": ("paper-straight-16in", "forward"),
-}
 REPORT = {  # Table 2 of the 2010 report, sparse column: abs error %
     "6in-forward": {"forward": 0.306, "note": "dataset 1 (dataset 2: 0.289)"},
     "6in-forward-reverse": {"forward": 0.128, "reverse": 0.060, "total": 0.034},
@@ -55,41 +50,11 @@ REPORT = {  # Table 2 of the 2010 report, sparse column: abs error %
 }
 
 
-def dataset(args, case: str) -> Path:
-    preset, route = CASES[case]
-    spacing = args.spacing_6in if preset == "paper-straight-6in" else args.spacing_16in
-    root = Path(args.data) / f"{preset}-{route}-{spacing}-s{args.seed}"
-    if not (root / "dataset.yaml").exists():
-        shutil.rmtree(root, ignore_errors=True)
-        root.parent.mkdir(parents=True, exist_ok=True)
-        simulate(preset, root, seed=args.seed, route=route, spacing_m=spacing if spacing > 0 else None,
-                 workers=os.cpu_count())
-    if not (root / "gain_mask.png").exists():
-        shutil.copy(white_card(args, preset), root / "gain_mask.png")
-        with open(root / "dataset.yaml", "a") as fh:
-            fh.write("gain_mask: gain_mask.png\n")
-    return root
-
-
-def white_card(args, preset: str) -> Path:
-    card = Path(args.data) / f"white-{preset}-s{args.seed}"
-    if (card / "gain_mask.png").exists():
-        return card / "gain_mask.png"
-    shutil.rmtree(card, ignore_errors=True)
-    simulate("white-card", card, seed=args.seed, route="16in" if preset == "paper-straight-16in" else "6in")
-    return card / "gain_mask.png"
-
-
 def true_offset(root: Path) -> list[float]:
     """The first camera's (C_X, C_Y) in the report's pipe frame: camera y and z offsets from the axis
     (the simulated pipes lie along world x with the axis at y = z = 0)."""
     gt = load_dataset(root).ground_truth_poses()
     return [float(gt.positions[0, 1]), float(gt.positions[0, 2])]
-
-
-def row(d) -> dict:
-    return {"ground_truth_mm": round(d.ground_truth * 1e3, 1), "estimate_mm": round(d.estimate * 1e3, 1),
-            "error_mm": round(d.error * 1e3, 1), "abs_error_pct": round(d.abs_error_pct, 3)}
 
 
 def run_case(args, case: str, root: Path) -> dict:
@@ -118,13 +83,9 @@ def run_case(args, case: str, root: Path) -> dict:
         "overrides": overrides,
         "frames_per_second": round(res.frames / (res.seconds["features"] + res.seconds["motion"]), 2),
         "seconds": {k: round(v, 1) for k, v in res.seconds.items()} | {"wall": round(wall, 1)},
-        "forward": row(d.forward), "reverse": None if d.reverse is None else row(d.reverse),
-        "total": None if d.total is None else row(d.total), "report_abs_error_pct": REPORT[case],
+        **distance_rows(d), "report_abs_error_pct": REPORT[case],
     }
-    rev = "" if d.reverse is None else (f"  reverse {d.reverse.estimate * 1e3:7.1f} mm {d.reverse.abs_error_pct:6.3f} %"
-                                        f"  total {d.total.estimate * 1e3:6.1f} mm {d.total.abs_error_pct:6.3f} %")
-    print(f"{case:21s} gt {d.forward.ground_truth * 1e3:6.1f} mm  forward {d.forward.estimate * 1e3:7.1f} mm "
-          f"{d.forward.abs_error_pct:6.3f} %{rev}  C_Y {res.offset[1] * 1e3:6.2f} mm (true {truth[1] * 1e3:6.2f})"
+    print(f"{case:21s} {distance_text(d)}  C_Y {res.offset[1] * 1e3:6.2f} mm (true {truth[1] * 1e3:6.2f})"
           f" [{entry['offset_mm']['source']}]  {entry['frames_per_second']:5.1f} frames/s", flush=True)
     return entry
 
