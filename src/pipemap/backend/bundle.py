@@ -71,6 +71,20 @@ class Observations:
         return len(self.camera)
 
 
+def problem_inputs(poses, points, observations):
+    """Checked (R, t, points, Observations) of a bundle problem: poses (N, 4, 4) or an (R, t) pair,
+    points (M, 3), observations indexing both."""
+    R, t = as_rt(poses)
+    X = np.array(points, dtype=float)
+    if R.ndim != 3 or X.ndim != 2 or X.shape[1] != 3:
+        raise ValueError(f"expected poses (N, 4, 4) and points (M, 3), got {R.shape[:-2]} poses, points {X.shape}")
+    obs = observations if isinstance(observations, Observations) else Observations(*observations)
+    N, M = len(R), len(X)
+    if len(obs) and (obs.camera.min() < 0 or obs.camera.max() >= N or obs.point.min() < 0 or obs.point.max() >= M):
+        raise ValueError("observation indices out of range")
+    return R, t, X, obs
+
+
 @dataclass
 class BundleState:
     """The unknowns: poses T_wc = (R, t), points, and the cylinder's local parameters (or None)."""
@@ -129,14 +143,8 @@ class BundleProblem:
                  huber_m: float = 0.005, mad_k: float = 3.0, outlier_passes: int = 3, max_iterations: int = 20,
                  fixed_distance: tuple[int, int] | None = None, distance_weight: float = 1e6):
         self.camera = camera
-        R, t = as_rt(poses)
-        X = np.array(points, dtype=float)
-        if R.ndim != 3 or X.ndim != 2 or X.shape[1] != 3:
-            raise ValueError(f"expected poses (N, 4, 4) and points (M, 3), got {R.shape[:-2]} poses, points {X.shape}")
-        obs = observations if isinstance(observations, Observations) else Observations(*observations)
+        R, t, X, obs = problem_inputs(poses, points, observations)
         N, M = len(R), len(X)
-        if len(obs) and (obs.camera.min() < 0 or obs.camera.max() >= N or obs.point.min() < 0 or obs.point.max() >= M):
-            raise ValueError("observation indices out of range")
         self.obs, self.N, self.M = obs, N, M
         self.fixed = np.zeros(N, bool)
         self.fixed[list(fixed_poses)] = True

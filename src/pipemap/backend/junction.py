@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from pipemap.backend.bundle import Observations
+from pipemap.backend.bundle import problem_inputs
 from pipemap.backend.end_cylinders import fit_end_cylinder, fit_end_cylinders
 from pipemap.backend.robust import huber_cost, huber_weights, mad_inliers
 from pipemap.backend.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
@@ -118,14 +118,8 @@ class JunctionProblem:
                  huber_px: float = 1.0, huber_m: float = 0.005, mad_k: float = 3.0, outlier_passes: int = 3,
                  max_iterations: int = 20):
         self.camera = camera
-        R, t = as_rt(poses)
-        X = np.array(points, dtype=float)
-        if R.ndim != 3 or X.ndim != 2 or X.shape[1] != 3:
-            raise ValueError(f"expected poses (N, 4, 4) and points (M, 3), got {R.shape[:-2]} poses, points {X.shape}")
-        obs = observations if isinstance(observations, Observations) else Observations(*observations)
+        R, t, X, obs = problem_inputs(poses, points, observations)
         N, M = len(R), len(X)
-        if len(obs) and (obs.camera.min() < 0 or obs.camera.max() >= N or obs.point.min() < 0 or obs.point.max() >= M):
-            raise ValueError("observation indices out of range")
         self.obs, self.N, self.M = obs, N, M
         self.red_index, self.blue_index = int(red_pose), int(blue_pose)
         fixed_mask = np.zeros(N, bool)
