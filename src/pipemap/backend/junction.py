@@ -9,6 +9,10 @@ Phi = (zeta_r, l_r, zeta_b, l_b, phi) (`pipemap.geometry.tee`), minimising the c
 
 d_i being the signed distance of point i to the wall of the cylinder it is assigned to: the one whose
 surface is nearer (|d| smallest), re-assigned at the start of every stage between outlier passes.
+A point far from both walls is on neither pipe (a stub's end cap, a valve, a fitting) and would pull
+Phi towards it through the Huber cost's constant gradient, so the sum runs over the points whose
+distance to the nearer wall passes the same MAD rule as the straight sections' cylinder fits
+(within mad_k robust sigmas, at least the Huber threshold), renewed with the assignment.
 Both cylinders are infinite in the model, so the branch's cylinder continued past I crosses the far
 wall of the pipe that runs through the junction; when the points show which pipe that is, the branch
 cylinder is cut at I for the assignment (`JunctionProblem.through_pipe`).
@@ -65,6 +69,7 @@ class JunctionResult:
     blue_pose: np.ndarray  # (4, 4) the new T_wc of P_b
     blue_transform: np.ndarray  # (4, 4) world transform that takes the blue section's initial poses to the solved ones
     on_blue: np.ndarray  # (M,) bool: point assigned to the blue cylinder (final assignment)
+    on_wall: np.ndarray  # (M,) bool: point on its cylinder's wall, in the cylinder term (final)
     through: str | None  # the pipe taken to run on through the junction ("red", "blue") or None
     inliers: np.ndarray  # (K,) bool per observation
     point_inliers: np.ndarray  # (M,) bool: seen in at least two inlier observations
@@ -205,6 +210,17 @@ class JunctionProblem:
                 on_blue |= a_red > 0
         return on_blue
 
+    def wall_inliers(self, state: JunctionState, on_blue: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+        """(M,) bool: the point lies on the wall of its cylinder (see the module docstring); `reference`: the
+        previous stage's wall points, over which the median and MAD are taken."""
+        d = self.cylinder_distance(state, on_blue)
+        ref = self.cylinder_points if reference is None else reference
+        return mad_inliers(d, self.mad_k, reference=ref, floor=self.huber_m) & self.cylinder_points
+
+    def _wall_context(self, state: JunctionState, reference: np.ndarray | None = None):
+        on_blue = self.assign(state)
+        return on_blue, self.wall_inliers(state, on_blue, reference)
+
     def through_pipe(self, state: JunctionState) -> str | None:
         """Which pipe runs on through the junction: "red", "blue" or None (not seen, or both).
 
@@ -235,16 +251,17 @@ class JunctionProblem:
         d_red, d_blue = state.model.distances(state.points, self._red_pose(state), jacobians=False)
         return np.where(on_blue, d_blue, d_red)
 
-    def cost(self, state: JunctionState, inliers: np.ndarray, on_blue: np.ndarray) -> float:
+    def cost(self, state: JunctionState, inliers: np.ndarray, on_blue: np.ndarray, on_wall: np.ndarray) -> float:
         e = self.reprojection(state)[inliers]
         c = float(huber_cost(np.linalg.norm(e, axis=1), self.huber_px).sum())
         if self.tau > 0:
-            on = (np.bincount(self.obs.point[inliers], minlength=self.M) > 0) & self.cylinder_points
+            on = (np.bincount(self.obs.point[inliers], minlength=self.M) > 0) & on_wall
             d = self.cylinder_distance(state, on_blue)[on]
             c += self.tau * float(huber_cost(np.abs(d), self.huber_m).sum())
         return c
 
-    def normal_equations(self, state: JunctionState, stage: "_Stage", on_blue: np.ndarray) -> NormalEquations:
+    def normal_equations(self, state: JunctionState, stage: "_Stage", on_blue: np.ndarray,
+                         on_wall: np.ndarray) -> NormalEquations:
         """IRLS-weighted Gauss-Newton blocks: free cameras, Phi (the global block), points."""
         st = stage
         Rc = state.R[st.cam]
@@ -275,7 +292,7 @@ class JunctionProblem:
             d = np.where(on_blue, d_blue, d_red)
             Jd_X = np.where(on_blue[:, None], Jb_X, Jr_X)
             Jd_phi = np.where(on_blue[:, None], Jb_phi, 0.0)
-            wd = np.where(st.active & self.cylinder_points, self.tau * huber_weights(np.abs(d), self.huber_m), 0.0)
+            wd = np.where(st.active & on_wall, self.tau * huber_weights(np.abs(d), self.huber_m), 0.0)
             wJd = wd[:, None] * Jd_X
             V += wJd[:, :, None] * Jd_X[:, None, :]
             gp += d[:, None] * wJd
@@ -315,32 +332,34 @@ class JunctionProblem:
         def linearise(state, ctx):
             if cache.get("ctx") is not ctx:  # the sparsity structure holds for a whole stage
                 cache.update(ctx=ctx, stage=_Stage(self, ctx[0]))
-            return self.normal_equations(state, cache["stage"], ctx[1]), cache["stage"]
+            return self.normal_equations(state, cache["stage"], *ctx[1:]), cache["stage"]
 
-        # The context of a stage: the inlier observations and each point's cylinder, both renewed between stages.
+        # The context of a stage: the inlier observations, each point's cylinder and whether it lies on that
+        # cylinder's wall, all renewed between stages.
         run = solve_in_stages(
-            state, (np.all(np.isfinite(self.obs.pixels), axis=1), self.assign(state)),
+            state, (np.all(np.isfinite(self.obs.pixels), axis=1), *self._wall_context(state)),
             cost=lambda st, ctx: self.cost(st, *ctx), linearise=linearise,
             solve=lambda eq, lam: solve_damped(eq[0], eq[1].schur, lam), step=self._step,
-            reject=lambda st, ctx: (self._reject(st, ctx[0]), self.assign(st)),
-            same=lambda a, b: np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]),
+            reject=lambda st, ctx: (self._reject(st, ctx[0]), *self._wall_context(st, ctx[2])),
+            same=lambda a, b: all(np.array_equal(x, y) for x, y in zip(a, b)),
             outliers=lambda ctx: (~ctx[0]).sum(), max_iterations=self.max_iterations,
             outlier_passes=self.outlier_passes)
-        inliers, on_blue = run.context
-        return self._result(run.state, inliers, on_blue, run.cost_history, run.iterations, time.perf_counter() - t0,
+        inliers, on_blue, on_wall = run.context
+        return self._result(run.state, inliers, on_blue, on_wall, run.cost_history, run.iterations, time.perf_counter() - t0,
                             run.converged, run.outlier_counts)
 
-    def _result(self, state, inliers, on_blue, history, iterations, seconds, converged, counts) -> JunctionResult:
+    def _result(self, state, inliers, on_blue, on_wall, history, iterations, seconds, converged,
+                counts) -> JunctionResult:
         e = self.reprojection(state)[inliers]
         rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if len(e) else float("nan")
         point_in = np.bincount(self.obs.point[inliers], minlength=self.M) >= 2
-        d = self.cylinder_distance(state, on_blue)[point_in & self.cylinder_points]
+        d = self.cylinder_distance(state, on_blue)[point_in & on_wall]
         cyl_rms = float(np.sqrt(np.mean(d**2))) if d.size else float("nan")
         red_pose = self._red_pose(state)
         poses = to_matrix(state.R, state.t)
         blue = poses[self.blue_index]
         return JunctionResult(poses, state.points.copy(), state.model.canonical(), state.model.intersection(red_pose),
-                              blue, blue @ np.linalg.inv(self.blue_initial), on_blue, self.through, inliers,
+                              blue, blue @ np.linalg.inv(self.blue_initial), on_blue, on_wall, self.through, inliers,
                               point_in, history, iterations, seconds, rms, cyl_rms, converged, counts)
 
 
