@@ -80,7 +80,8 @@ def test_ground_truth_as_estimate_has_zero_error_and_writes_metrics(tmp_path):
     assert len(res.junctions.pairs) == 6
     assert all(abs(p.error) < 1e-9 and abs(p.error_pct) < 1e-7 for p in res.junctions.pairs)
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    assert list(metrics) == ["format", "dataset", "poses", "ate", "path_length", "distance_travelled", "junctions", "sections", "notes"]
+    assert list(metrics) == ["format", "dataset", "poses", "ate", "path_length", "distance_travelled", "junctions", "sections",
+                            "appearance_wall", "notes"]
     assert metrics["format"] == "pipemap-metrics/1" and metrics["dataset"] == "synthetic"
     assert metrics["poses"]["associated"] == len(gt)
     assert set(metrics["ate"]) == {"rigid", "sim3"}

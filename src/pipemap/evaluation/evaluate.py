@@ -1,5 +1,6 @@
 """`pipemap evaluate`: read a result folder and a dataset's ground truth, compute every metric,
-write `metrics.json`. All maths lives in `metrics.py`; this module only reads and writes."""
+write `metrics.json`. The maths lives in `metrics.py`, `sections.py` and `wall_error.py`; this module
+only reads and writes."""
 
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from pipemap.evaluation.metrics import (
     percent,
 )
 from pipemap.evaluation.sections import SectionError, read_sections, section_errors
+from pipemap.evaluation.wall_error import AppearanceWall, appearance_wall
 from pipemap.network import PipeNetwork, load_network
 from pipemap.output import atomic_write_text
 from pipemap.trajectory import Trajectory, read_tum
@@ -48,6 +50,7 @@ class EvaluationResult:
     turnaround_time_s: tuple[float, float] | None = None  # (ground truth, estimate)
     junctions: JunctionTable | None = None  # networks with junctions and a junctions.yaml
     sections: tuple[SectionError, ...] = ()  # straight sections one by one (run.json lists them)
+    appearance_wall: AppearanceWall | None = None  # appearance.ply against the true wall
     notes: tuple[str, ...] = field(default_factory=tuple)  # why a table is absent
 
     @property
@@ -94,6 +97,7 @@ class EvaluationResult:
                 "distance_travelled": distance,
                 "junctions": None if self.junctions is None else self.junctions.as_dict(),
                 "sections": [x.as_dict() for x in self.sections],
+                "appearance_wall": None if self.appearance_wall is None else self.appearance_wall.as_dict(),
                 "notes": list(self.notes),
             }
         )
@@ -186,19 +190,21 @@ def evaluate(result_dir: str | Path, dataset_dir: str | Path, write: bool = True
 
     notes: list[str] = []
     distance, turnaround = None, None
-    junctions = None
+    junctions, wall = None, None
+    ate_rigid = ate(est_m.positions, gt_m.positions, with_scale=False)
     if network is None:
-        notes.append("no ground_truth/network.yaml: distance-travelled and junction tables skipped")
+        notes.append("no ground_truth/network.yaml: distance-travelled, junction and appearance-wall tables skipped")
     else:
         distance, turnaround = _straight_run(network, est_m, gt_m, notes)
         junctions = _junctions(network, junctions_path, notes)
+        wall = _appearance_wall(result_dir, network, est, gt, ate_rigid, notes)
 
     result = EvaluationResult(
         dataset=_dataset_name(dataset_dir),
         estimated_poses=len(est),
         ground_truth_poses=len(gt),
         associated_poses=len(est_i),
-        ate_rigid=ate(est_m.positions, gt_m.positions, with_scale=False),
+        ate_rigid=ate_rigid,
         ate_sim3=ate(est_m.positions, gt_m.positions, with_scale=True),
         gt_path_length=path_length(gt_m.positions),
         est_path_length=path_length(est_m.positions),
@@ -206,6 +212,7 @@ def evaluate(result_dir: str | Path, dataset_dir: str | Path, write: bool = True
         turnaround_time_s=turnaround,
         junctions=junctions,
         sections=tuple(section_errors(read_sections(result_dir / "run.json"), est, gt)),
+        appearance_wall=wall,
         notes=tuple(notes),
     )
     if write:
@@ -257,6 +264,16 @@ def _junctions(network: PipeNetwork, path: Path, notes: list[str]) -> JunctionTa
             f"{table.truth_count}: only the first {len(table.matches)} are matched, in order"
         )
     return table
+
+
+def _appearance_wall(result_dir: Path, network: PipeNetwork, est: Trajectory, gt: Trajectory, ate_rigid: AteResult,
+                     notes: list[str]) -> AppearanceWall | None:
+    if not (result_dir / "appearance.ply").exists():
+        notes.append("the result has no appearance.ply: appearance-wall error skipped")
+        return None
+    wall = appearance_wall(result_dir, network, est, gt, ate_rigid.alignment)
+    notes.extend(wall.notes)
+    return wall
 
 
 def write_metrics(path: str | Path, result: EvaluationResult) -> None:

@@ -265,6 +265,15 @@ def _errors(metrics: dict | None) -> str:
                  _num(s.get("estimate_m"), ".3f"), _num(s.get("error_pct"), "+.3f")] for s in sections]
         text.append("<h3>Straight sections, one by one</h3>" + _table(
             ["section", "keyframes", "truth (m)", "estimate (m)", "error (%)"], rows, 2))
+    wall = metrics.get("appearance_wall")
+    if wall:
+        rows = [[label, s.get("points"), _num(s.get("median_mm"), ".2f"), _num(s.get("p90_mm"), ".2f"),
+                 _num(s.get("max_mm"), ".2f"), _num(s.get("within_2mm_pct"), ".1f")]
+                for label, s in (("global", wall.get("global")), ("local", wall.get("local"))) if isinstance(s, dict)]
+        text.append("<h3>Appearance map vs true wall</h3>" + _table(
+            ["alignment", "points", "median (mm)", "90 % (mm)", "max (mm)", "within 2 mm (%)"], rows) +
+            "<p>global: the ATE's rigid alignment; local: each wall piece aligned by its own straight section's "
+            "keyframes (positions and orientations)</p>")
     notes = metrics.get("notes") or []
     if notes:
         text.append("<ul>" + "".join(f"<li>{html.escape(str(n))}</li>" for n in notes) + "</ul>")

@@ -88,10 +88,26 @@ def section_table(result: EvaluationResult) -> Table | None:
     return t
 
 
+def appearance_wall_table(result: EvaluationResult) -> Table | None:
+    """appearance.ply's distance to the true wall: under the ATE's alignment, and piece by piece."""
+    w = result.appearance_wall
+    if w is None:
+        return None
+    t = Table(title="Appearance map vs true wall (mm)",
+              caption="global: the ATE's rigid alignment; local: each piece aligned by its own section's keyframes")
+    for name in ("Alignment", "Points", "Median", "90 %", "Max", "Within 2 mm (%)"):
+        t.add_column(name, justify="left" if name == "Alignment" else "right")
+    for label, s in (("global", w.global_), ("local", w.local)):
+        if s is not None:
+            t.add_row(label, str(s.points), _num(s.median_mm, ".2f"), _num(s.p90_mm, ".2f"), _num(s.max_mm, ".2f"),
+                      _num(s.within_2mm_pct, ".1f"))
+    return t
+
+
 def tables(result: EvaluationResult) -> list[Table]:
     """All tables that apply to this result, in reading order."""
     return [t for t in (summary_table(result), distance_travelled_table(result), junction_distance_table(result),
-                        section_table(result)) if t is not None]
+                        section_table(result), appearance_wall_table(result)) if t is not None]
 
 
 def print_tables(result: EvaluationResult, console: Console | None = None) -> None:
