@@ -192,6 +192,12 @@ class SparseSettings(_Section):
                                   "kept when the batch cannot determine the offset (narrow lens, large pipe)")
     refine_every: int = Field(50, gt=0, description="N: 6-DOF sliding refinement over the previous 2N")
     refine_passes: int = Field(2, gt=0)
+    refine_dof: Literal["auto", "six", "crawler"] = Field(
+        "auto", description="sliding refinement: six = every pose in all six degrees of freedom (the report); "
+        "crawler = only the robot's roll about the axis and its travel along it, its camera mount held as the "
+        "offset batch left it (sparse_motion.refine_crawler); auto = crawler where the batch found the images "
+        "cannot determine the camera's offset (narrow lens, large pipe: they cannot fix pitch or the distance to "
+        "the wall either), else six")
     # What the report leaves open.
     gain_correct: bool = Field(True, description="divide by the dataset's gain mask when it has one (section 3.2)")
     initial_offset_m: tuple[float, float] = Field(

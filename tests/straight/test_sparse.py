@@ -23,7 +23,8 @@ from pipemap.straight.sparse_batch import bundle_batch, to_pipe_frame
 from pipemap.straight.sparse_features import Keypoints, harris_response, match, quadratic_refine, region_corners
 from pipemap.straight.sparse_geometry import R0, wall_coords, wall_from_coords, wall_offset_jacobian, wall_points
 from pipemap.straight.sparse_keyframes import KeyframeLink, View, inlier_pairs
-from pipemap.straight.sparse_motion import KeyframeState, estimate_one_dof, gate_outliers, refine_six_dof
+from pipemap.straight.sparse_motion import (KeyframeState, estimate_one_dof, gate_outliers, refine_crawler,
+                                            refine_six_dof)
 from pipemap.straight.sparse_odometry import SparseOdometry
 from pipemap.straight.sparse_offset import OffsetBatch, offset_residuals, optimise_offset
 from pipemap.straight.sparse_sums import WallSums
@@ -347,6 +348,20 @@ def test_six_dof_refinement_recovers_a_pose(camera):
     assert np.all(sums.n(b.gid) >= 1) and shared.mean() > 0.8  # its estimates went back into S(g)
 
 
+def test_crawler_refinement_recovers_roll_and_travel(camera):
+    """A robot that rolled up the wall by 2 deg and drove 11 mm: the closed form of eq. 42 over those two
+    motions finds both exactly (a wrong sign of either, or rho taken as an angle, fails)."""
+    turn = exp_so3(np.array([0.0, 0.0, np.radians(2.0)]))
+    Ca = np.array([0.0, -0.025, 0.0])
+    sums, b = _keyframe_pair(camera, (turn @ R0, turn @ Ca + np.array([0.0, 0.0, 0.011])))
+    used = refine_crawler(b, sums, RADIUS)
+    assert used > 100
+    np.testing.assert_allclose(b.R, turn @ R0, atol=1e-9)
+    np.testing.assert_allclose(b.C, turn @ Ca + [0.0, 0.0, 0.011], atol=1e-9)
+    r, _, _ = sums.residuals(b.gid, b.hr)  # its own estimates are back in S(g) and agree with keyframe a's
+    assert np.all(sums.n(b.gid) >= 1) and np.abs(r).max() < 1e-9
+
+
 def test_gate_cuts_injected_mismatches(camera):
     sums, b = _keyframe_pair(camera, (R0, np.array([0.0, -0.025, 0.01])), noise=0.2)
     estimate_one_dof(b, sums, RADIUS)
@@ -466,3 +481,8 @@ def test_sixteen_inch_offset_is_kept_where_the_batch_cannot_see_it(sixteen_inch_
     depth = RADIUS_16 - true[2]
     assert np.hypot(*run["batch_sigma_m"]) > 0.003 * depth  # the batch's own verdict: a scale error beyond 0.3 %
     assert abs(res.offset[1] - true[2]) < 1e-3 and abs(res.offset[0] - true[1]) < 1e-3
+    # images that cannot fix the offset cannot fix pitch or the distance to the wall either: the refinement
+    # keeps the crawler's mount, and the distance comes out at the measured offset's scale
+    assert json.loads((tmp_path / "bundle" / "run.json").read_text())["refinement_dof"] == "crawler"
+    d = evaluate(tmp_path / "bundle", sixteen_inch_sparse, write=False).distance.forward
+    assert d.abs_error_pct < 1.0, d  # 15 cm at 320x240 and the offset rounded to the mm (0.4 % of the scale)

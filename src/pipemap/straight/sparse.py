@@ -164,6 +164,7 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
                           "frame": "first keyframe's camera frame"},
             "distance_along_pipe_m": float(h.max() - h.min()),
             "keyframes_without_constraints": odometry.unconstrained,
+            "refinement_dof": odometry.refine_dof(),
             "seconds": {k: round(v, 3) for k, v in seconds.items()},
         }
         atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")

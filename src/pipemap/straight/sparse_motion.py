@@ -6,6 +6,10 @@
 - Six degrees of freedom (5.3.3): every N keyframes each of the previous 2N (never the first,
   which fixes the frame) is refined in turn: its own estimates are taken out of S(g), its pose is
   optimised on eq. 42 over all six degrees of freedom, and its new estimates are put back.
+- Crawler (two degrees of freedom): the same sweep, but a keyframe only turns about the pipe axis
+  and moves along it, as a robot riding the wall does with its camera mount fixed. Both motions
+  slide every wall estimate of the keyframe rigidly in (h, rho), so eq. 42's minimum is the
+  n-weighted mean difference between the stored means and the keyframe's estimates.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from typing import Callable
 
 import numpy as np
 
+from pipemap.geometry.rotations import exp_so3
 from pipemap.geometry.se3 import retract
 from pipemap.straight.sparse_geometry import E_H, wall_coords, wall_offset_jacobian, wall_points
 from pipemap.straight.sparse_sums import WallSums
@@ -114,6 +119,24 @@ def refine_six_dof(kf: KeyframeState, sums: WallSums, radius: float, iterations:
         (kf.R, kf.C), _, _ = levenberg_marquardt(evaluate, lambda p, d: retract(p[0], p[1], d), (kf.R, kf.C),
                                                  iterations)
     kf.hr = kf.estimates(radius)
+    sums.add(kf.gid, kf.hr)
+    return int(used.sum())
+
+
+def refine_crawler(kf: KeyframeState, sums: WallSums, radius: float) -> int:
+    """Eq. 42 over the keyframe's roll psi about the axis and travel dh along it, in closed form: turning by
+    psi and moving by dh take every wall estimate (h, rho) to (h + dh, rho + r psi)."""
+    if kf.hr is not None:
+        sums.add(kf.gid, kf.hr, -1.0)
+    hr = kf.estimates(radius)
+    used = (sums.n(kf.gid) > 0) & np.all(np.isfinite(hr), axis=1)
+    if used.any():
+        n = sums.n(kf.gid[used])
+        dh, drho = n @ (sums.means(kf.gid[used]) - hr[used]) / n.sum()
+        turn = exp_so3(np.array([0.0, 0.0, drho / radius]))
+        kf.R, kf.C = turn @ kf.R, turn @ kf.C + dh * E_H
+        hr = kf.estimates(radius)
+    kf.hr = hr
     sums.add(kf.gid, kf.hr)
     return int(used.sum())
 

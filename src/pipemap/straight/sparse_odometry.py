@@ -7,6 +7,8 @@ estimates to S(g). When the batch of the first `offset_batch_keyframes` keyframe
 their common offset (C_X, C_Y) and heights are optimised on image reprojection (5.3.2) and their
 estimates in S(g) recomputed. Every `refine_every` keyframes the previous 2N are refined with six
 degrees of freedom, `refine_passes` times (5.3.3); the end of the run gets the same treatment.
+Where the batch found the camera's offset beyond what the images determine, the refinement keeps
+the camera mount and moves each keyframe only about and along the axis (`refine_dof`).
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ from pipemap.config import SparseSettings
 from pipemap.straight.sparse_batch import bundle_batch
 from pipemap.straight.sparse_geometry import initial_pose, wall_distance
 from pipemap.straight.sparse_keyframes import KeyframeLink, View
-from pipemap.straight.sparse_motion import KeyframeState, estimate_one_dof, gate_outliers, refine_six_dof
+from pipemap.straight.sparse_motion import (KeyframeState, estimate_one_dof, gate_outliers, refine_crawler,
+                                            refine_six_dof)
 from pipemap.straight.sparse_offset import OffsetBatch, optimise_offset
 from pipemap.straight.sparse_sums import WallSums
 
@@ -131,10 +134,25 @@ class SparseOdometry:
     def refine(self, a: int) -> None:
         """5.3.3: keyframes max(1, a - 2N + 1) .. a, one after the other, `refine_passes` times."""
         lo = max(1, a - 2 * self.sparse.refine_every + 1)
+        crawler = self.refine_dof() == "crawler"
         for _ in range(self.sparse.refine_passes):
             for k in range(lo, a + 1):
-                refine_six_dof(self.keyframes[k], self.sums, self.radius, self.sparse.lm_iterations)
+                if crawler:
+                    refine_crawler(self.keyframes[k], self.sums, self.radius)
+                else:
+                    refine_six_dof(self.keyframes[k], self.sums, self.radius, self.sparse.lm_iterations)
         self.refined_at = a
+
+    def refine_dof(self) -> str:
+        """"six" or "crawler" (settings.refine_dof; auto: crawler when the batch left the offset undetermined).
+
+        The images fix the offset through the curvature of the wall they see; where that is too weak
+        (narrow lens, large pipe) they are as blind to a keyframe's pitch, which looks like a move along
+        the axis (report Figure 10), and to its distance from the wall, which is the scale. Refining
+        those one keyframe at a time against its neighbours then lets them wander with the scale."""
+        if self.sparse.refine_dof != "auto":
+            return self.sparse.refine_dof
+        return "crawler" if self.offset is not None and not self.offset.determined else "six"
 
     def finish(self) -> None:
         if self.offset is None and len(self.keyframes) >= 2:
