@@ -30,6 +30,9 @@ def test_demo_writes_everything(tmp_path):
     assert abs(s.path_length_error_pct) < 10.0
     assert s.ate_rmse_m < 0.1
     assert s.appearance_points > 100_000
+    # 320x240 has a quarter of the preset's pixels: the map still lies within a few mm of the wall
+    assert s.appearance_wall["global"]["points"] == s.appearance_points
+    assert s.appearance_wall["local"]["median_mm"] < 3.0
     run = json.loads((result / "run.json").read_text())
     assert run["appearance"]["appearance_points"] == s.appearance_points
     assert "Errors against ground truth" in s.report.read_text()

@@ -369,6 +369,12 @@ def demo(
                       f"({row['error_pct']:+.2f} %)")
     if summary.appearance_points is not None:
         table.add_row("appearance map", f"{summary.appearance_points} points")
+    wall = summary.appearance_wall or {}
+    for name in ("global", "local"):
+        stats = wall.get(name)
+        if stats:
+            table.add_row(f"map vs true wall ({name})", f"median {stats['median_mm']:.2f} mm, "
+                          f"{stats['within_2mm_pct']:.1f} % within 2 mm")
     console.print(table)
     for note in summary.notes:
         console.print(f"note: {note}", markup=False)

@@ -39,6 +39,7 @@ class DemoSummary:
     tee_errors: list[dict] = field(default_factory=list)  # Table I rows: pair, truth_m, estimate_m, error_m, error_pct
     appearance_points: int | None = None
     notes: list[str] = field(default_factory=list)
+    appearance_wall: dict | None = None  # metrics.json "appearance_wall": map points against the true wall
 
 
 def _prepare(out_dir: Path, force: bool) -> None:
@@ -98,9 +99,10 @@ def run_demo(out_dir: str | Path, width: int = 640, height: int = 480,
         tees = [{"pair": "-".join(p.truth_ids), "truth_m": p.ground_truth, "estimate_m": p.estimate,
                  "error_m": p.error, "error_pct": p.error_pct} for p in metrics.junctions.pairs]
     notes += list(metrics.notes)
+    wall = None if metrics.appearance_wall is None else metrics.appearance_wall.as_dict()
     return DemoSummary(out_dir, Path(dataset_dir), result_dir, html, result.image_count, result.keyframe_count,
                        seconds, _finite(metrics.path_length_error_pct), _finite(metrics.ate_rigid.rmse), tees,
-                       maps, notes)
+                       maps, notes, wall)
 
 
 def _finite(v) -> float | None:
