@@ -190,6 +190,10 @@ class SparseSettings(_Section):
                                     "(that fraction is the scale error it brings)")
     offset_measured: bool = Field(False, description="initial_offset_m was measured on the robot (as in the report): "
                                   "kept when the batch cannot determine the offset (narrow lens, large pipe)")
+    offset_long_keyframes: int = Field(100, gt=1, description="where the bundle batch leaves the offset "
+                                       "undetermined and none was measured: eqs. 45-49 again over this many "
+                                       "keyframes, one offset and rotation for all (<= offset_batch_keyframes: off)")
+    offset_long_lag: int = Field(10, gt=0, description="long batch: pairs of keyframes at most this far apart")
     refine_every: int = Field(50, gt=0, description="N: 6-DOF sliding refinement over the previous 2N")
     refine_passes: int = Field(2, gt=0)
     refine_dof: Literal["auto", "six", "crawler"] = Field(

@@ -228,6 +228,58 @@ def _wobbling_batch(camera, n_points, noise, seed, keyframes=10, step=0.006):
     return gids, uvs, bears, true_R, true_C
 
 
+def _smoothly_wobbling_run(camera, n_points, noise, seed, keyframes, step):
+    """Like _wobbling_batch, but the wobble is smooth along the pipe (0.3 deg, 1 mm, 0.5 m wavelength), as a
+    crawler's on a pipe floor."""
+    rng = np.random.default_rng(seed)
+    h = np.arange(keyframes) * step
+    phase = rng.uniform(0, 2 * np.pi, 5)
+    wave = np.sin(2 * np.pi * h[:, None] / 0.5 + phase)
+    true_C = np.stack([1e-3 * wave[:, 0], -0.07 + 1e-3 * wave[:, 1], h], axis=-1)
+    true_R = np.array([R0 @ exp_so3(np.radians(0.3) * w[2:]) for w in wave])
+    hr = np.stack([rng.uniform(-0.08, h[-1] + 0.08, n_points), rng.uniform(-0.06, 0.06, n_points)], axis=-1)
+    X = wall_from_coords(hr, RADIUS_16)
+    gids, uvs, bears = [], [], []
+    for R, C in zip(true_R, true_C):
+        uv, ok = camera.project((X - C) @ R)
+        ids = np.flatnonzero(ok)
+        uv = uv[ids] + rng.normal(0, noise, (len(ids), 2))
+        b, valid = camera.unproject(uv)
+        gids.append(ids[valid])
+        uvs.append(uv[valid])
+        bears.append(b[valid])
+    return gids, uvs, bears, true_R, true_C
+
+
+def test_offset_batch_pairs_within_a_lag():
+    gids = [np.array([7]), np.array([7]), np.array([7]), np.array([7])]
+    uvs = [np.zeros((1, 2))] * 4
+    bears = [np.array([[0.0, 0.0, 1.0]])] * 4
+    assert len(OffsetBatch.from_keyframes(gids, uvs, bears)) == 12  # every ordered pair of 4 keyframes
+    near = OffsetBatch.from_keyframes(gids, uvs, bears, max_lag=1)
+    assert sorted(zip(near.a.tolist(), near.b.tolist())) == [(0, 1), (1, 0), (1, 2), (2, 1), (2, 3), (3, 2)]
+
+
+def test_long_batch_finds_the_offset_the_short_batch_cannot(narrow_camera):
+    """25 deg lens, 16-inch pipe, a crawler wobbling 0.3 deg and 1 mm over half a metre: ten keyframes cannot
+    tell its distance from the wall (the bundle batch says so), sixty held at one offset and rotation can."""
+    gids, uvs, bears, R, C = _smoothly_wobbling_run(narrow_camera, 8000, 0.2, seed=11, keyframes=60, step=0.006)
+    views = [View(k, Keypoints(uv, np.ones(len(uv)), np.zeros((len(uv), 128))), b, np.ones(len(uv), bool))
+             for k, (uv, b) in enumerate(zip(uvs, bears))]
+    odo = SparseOdometry(narrow_camera, RADIUS_16, SparseSettings(offset_long_keyframes=60))
+    for k in range(1, len(views)):
+        _, pa, pb = np.intersect1d(gids[k - 1], gids[k], return_indices=True)
+        odo.add(KeyframeLink(views[k - 1], views[k], np.stack([pa, pb], axis=-1), len(pa)))
+    odo.finish()
+    assert odo.offset.model == "bundle" and not odo.offset.determined and odo.offset.used == "long batch"
+    assert odo.refine_dof() == "crawler"
+    depth = RADIUS_16 - C[0, 1]
+    # 320x240 over 36 cm: the scale to 0.5 % (the ten-keyframe batch is several mm off here)
+    assert abs(odo.offset.offset[1] - C[0, 1]) < 0.005 * depth, (odo.offset.offset, C[0])
+    _, _, Ce = odo.poses()
+    assert abs((Ce[-1, 2] - Ce[0, 2]) / (C[-1, 2] - C[0, 2]) - 1) < 0.006
+
+
 def _in_first_camera_gauge(R, C):
     """Poses with the pipe frame turned about its axis so that the first camera looks up (+Y)."""
     return to_pipe_frame(Cylinder(np.zeros(3), [0, 0, 1.0], RADIUS_16), R, C)

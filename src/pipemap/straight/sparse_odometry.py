@@ -13,7 +13,7 @@ the camera mount and moves each keyframe only about and along the axis (`refine_
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -40,7 +40,8 @@ class BatchSummary:
     observations: int  # observations (bundle) or observation pairs (report) used
     sigma: np.ndarray | None = None  # (2,) standard deviations of the estimate (bundle only)
     determined: bool = True  # sigma within offset_max_sigma of the camera's distance to the wall
-    used: str = "batch"  # "batch": the poses of the batch were kept; "given": the measured initial_offset_m
+    used: str = "batch"  # "batch": the poses of the batch were kept; "given": the measured initial_offset_m;
+    # "long batch": eqs. 45-49 over offset_long_keyframes, the batch having left the offset undetermined
 
 
 class SparseOdometry:
@@ -86,6 +87,8 @@ class SparseOdometry:
         a = len(self.keyframes) - 1
         if self.offset is None and len(self.keyframes) == self.sparse.offset_batch_keyframes:
             self.optimise_offset()
+        elif self._wants_long_batch() and len(self.keyframes) == self.sparse.offset_long_keyframes:
+            self._long_batch(self.keyframes)
         if a % self.sparse.refine_every == 0:
             self.refine(a)
 
@@ -122,6 +125,28 @@ class SparseOdometry:
                                    "given" if keep_given else "batch")
         if not keep_given:
             self._replace_poses(kfs, res.R, res.C)
+
+    def _wants_long_batch(self) -> bool:
+        """The batch could not determine the offset and none was measured: look again over more keyframes."""
+        off = self.offset
+        return (off is not None and off.model == "bundle" and not off.determined and off.used == "batch"
+                and self.sparse.offset_long_keyframes > self.sparse.offset_batch_keyframes)
+
+    def _long_batch(self, kfs: list[KeyframeState]) -> None:
+        """Eqs. 45-49 over `offset_long_keyframes` keyframes: one offset and rotation for all of them (the
+        crawler's mount), so the faint curvature of the wall adds up over the whole stretch while the
+        robot's wobble, which biases a short batch held at one rotation, averages out."""
+        sp = self.sparse
+        batch = OffsetBatch.from_keyframes([k.gid for k in kfs], [k.uv for k in kfs], [k.bearings for k in kfs],
+                                           max_lag=sp.offset_long_lag)
+        R, C0 = kfs[0].R, kfs[0].C
+        heights = np.array([k.C[2] - C0[2] for k in kfs])
+        if len(batch) < 2 * (len(kfs) + 1):
+            return
+        res = optimise_offset(batch, self.camera, self.radius, R, C0[:2], heights)
+        self.offset = replace(self.offset, offset=res.offset, rms_px=res.rms_px, observations=res.pairs,
+                              used="long batch")
+        self._replace_poses(kfs, [R for _ in kfs], [np.r_[res.offset, h] for h in res.heights])
 
     def _replace_poses(self, kfs: list[KeyframeState], R, C) -> None:
         """New poses for the batch's keyframes; their estimates in S(g) follow."""

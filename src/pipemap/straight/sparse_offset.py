@@ -32,8 +32,10 @@ class OffsetBatch:
     eta_b: np.ndarray  # (M, 3)
 
     @classmethod
-    def from_keyframes(cls, gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[np.ndarray]) -> "OffsetBatch":
-        """Every ordered pair of distinct keyframes that saw the same global index."""
+    def from_keyframes(cls, gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[np.ndarray],
+                       max_lag: int | None = None) -> "OffsetBatch":
+        """Every ordered pair of distinct keyframes that saw the same global index (at most `max_lag`
+        keyframes apart when given: a long batch keeps its pairs in proportion to its keyframes)."""
         k = np.concatenate([np.full(len(g), i) for i, g in enumerate(gids)])
         g = np.concatenate(gids)
         uv = np.concatenate(uvs)
@@ -47,8 +49,10 @@ class OffsetBatch:
         for m in np.unique(sizes[sizes > 1]):  # one vectorised block per track length
             s = starts[sizes == m]
             p, q = np.nonzero(~np.eye(m, dtype=bool))
-            ia.append((s[:, None] + p[None, :]).ravel())
-            ib.append((s[:, None] + q[None, :]).ravel())
+            a, b = (s[:, None] + p[None, :]).ravel(), (s[:, None] + q[None, :]).ravel()
+            near = np.ones(len(a), bool) if max_lag is None else np.abs(k[a] - k[b]) <= max_lag
+            ia.append(a[near])
+            ib.append(b[near])
         if not ia:
             z = np.zeros(0, int)
             return cls(z, z, np.zeros((0, 2)), np.zeros((0, 3)))
