@@ -58,6 +58,11 @@ class FrontendSettings(_Section):
     dark_level: float = Field(12.0, ge=0, description="no features where the local mean grey level is below this")
     contrast_limit: float = Field(16.0, ge=0, description="soft limit of the flattened image (64 x log units): "
                                   "rims of dark openings no longer outscore the wall's corners (0: off)")
+    anchor_refine: bool = Field(True, description="re-locate continued tracks against their first appearance "
+                                "(affine Lucas-Kanade), so that their error does not grow with their length")
+    anchor_max_shift_px: float = Field(1.5, gt=0, description="an anchor match farther than this from the ZNCC one is refused")
+    anchor_min_zncc: float = Field(0.7, gt=-1, le=1, description="an anchor match correlating less than this is refused")
+    anchor_iterations: int = Field(10, gt=0, description="Lucas-Kanade iterations of the anchor match")
 
 
 class ClassificationSettings(_Section):

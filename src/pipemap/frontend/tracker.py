@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from pipemap.camera import CameraModel
 from pipemap.config import FrontendSettings
 from pipemap.dataset import Frame
+from pipemap.frontend.anchor import anchor_templates, identity_warps, refine_to_anchors
 from pipemap.frontend.descriptors import describe, match_descriptors, smooth_for_templates
 from pipemap.frontend.guided import guided_zncc, predict_positions
 from pipemap.frontend.harris import bearing_map, detect_corners, flatten_lighting, valid_mask
@@ -46,6 +47,8 @@ class _Features:
     keypoints: np.ndarray
     bearings: np.ndarray
     descriptors: np.ndarray
+    templates: np.ndarray | None = None  # keyframes: each track's patch where it was first seen (anchor.py)
+    warps: np.ndarray | None = None  # ... and its affine warp into this keyframe
 
 
 @dataclass
@@ -163,6 +166,8 @@ class FeatureTracker:
     def _start(self, f: _Features) -> Keyframe:
         """A keyframe with no link to the previous one (the first, or after tracking was lost)."""
         n = len(f.keypoints)
+        if self.s.anchor_refine:
+            f.templates, f.warps = anchor_templates(f.image, f.keypoints, self.s.zncc_patch), identity_warps(n)
         kf = Keyframe(len(self.keyframes), f.index, f.timestamp, f.keypoints, f.bearings, self.ids.new(n),
                       np.zeros(n, bool), np.zeros(n, bool), np.eye(3), np.zeros(3), False)
         return self._emit(f, kf)
@@ -200,6 +205,19 @@ class FeatureTracker:
         g_kf, g_pos, g_bear = g_kf[keep], g_pos[keep], g_bear[keep]
         g_desc, usable = describe(f.smoothed, g_pos, s.template_size, s.template_window)
         g_kf, g_pos, g_bear, g_desc = g_kf[usable], g_pos[usable], g_bear[usable], g_desc[usable]
+        if s.anchor_refine:
+            kf_rows = np.concatenate([m.kf_idx, g_kf])
+            ok, pos, warps = refine_to_anchors(f.image, kf.templates[kf_rows], np.concatenate([matched_pts, g_pos]),
+                                               kf.warps[kf_rows], s.zncc_patch, s.anchor_iterations,
+                                               s.anchor_max_shift_px, s.anchor_min_zncc)
+            if ok.any():
+                bear = np.concatenate([matched_bear, g_bear])
+                new_bear, _ = self.camera.unproject(pos[ok])
+                bear[ok] = new_bear.reshape(-1, 3)
+                n_desc = len(m.kf_idx)
+                matched_pts, g_pos = pos[:n_desc], pos[n_desc:]
+                matched_bear, g_bear = bear[:n_desc], bear[n_desc:]
+            m_warps, g_warps = warps[:len(m.kf_idx)], warps[len(m.kf_idx):]
         # All matches together pin the pose down better than the descriptor matches alone.
         all_i = np.concatenate([kf.bearings[m.kf_idx], kf.bearings[g_kf]])
         all_j = np.concatenate([matched_bear, g_bear])
@@ -211,6 +229,9 @@ class FeatureTracker:
         d_ok, g_ok = consistent[:n_desc], consistent[n_desc:]
         kf_idx, frame_idx, matched_pts, matched_bear = m.kf_idx[d_ok], m.frame_idx[d_ok], matched_pts[d_ok], matched_bear[d_ok]
         g_kf, g_pos, g_bear, g_desc = g_kf[g_ok], g_pos[g_ok], g_bear[g_ok], g_desc[g_ok]
+        templates = warps = None
+        if s.anchor_refine:
+            m_warps, g_warps = m_warps[d_ok], g_warps[g_ok]
         # Harris corners of the frame: matched ones first, then unmatched ones not duplicating a guided match.
         rest = np.setdiff1d(np.arange(len(f.keypoints)), frame_idx)
         if len(g_pos) and len(rest) and s.duplicate_px > 0:
@@ -225,7 +246,12 @@ class FeatureTracker:
         inliers[n_desc:n_desc + n_rest] = False
         guided = np.zeros(len(keypoints), bool)
         guided[n_desc + n_rest:] = True
-        features = _Features(f.index, f.timestamp, f.image, f.smoothed, keypoints, bearings, descriptors)
+        if s.anchor_refine:
+            templates = np.concatenate([kf.templates[kf_idx], anchor_templates(f.image, f.keypoints[rest], s.zncc_patch),
+                                        kf.templates[g_kf]])
+            warps = np.concatenate([m_warps, identity_warps(len(rest)), g_warps])
+        features = _Features(f.index, f.timestamp, f.image, f.smoothed, keypoints, bearings, descriptors, templates,
+                             warps)
         keyframe = Keyframe(len(self.keyframes), f.index, f.timestamp, keypoints, bearings, track_ids, inliers, guided,
                             R, t, True)
         return self._emit(features, keyframe)
