@@ -184,6 +184,8 @@ def test_offset_jacobian_matches_numerical(camera):
     _, J = offset_residuals(x, sub, R0, camera, RADIUS, jacobian=True)
     num = _numeric(lambda p: offset_residuals(p, sub, R0, camera, RADIUS), x, eps=1e-8)
     np.testing.assert_allclose(J, num, rtol=1e-5, atol=1e-3)
+    _, Js = offset_residuals(x, sub, R0, camera, RADIUS, jacobian=True, sparse=True)
+    np.testing.assert_array_equal(Js.toarray(), J)
 
 
 def test_offset_batch_recovers_the_camera_offset(camera):

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
 
 from pipemap.camera import CameraModel
 from pipemap.straight.sparse_geometry import E_H, wall_offset_jacobian
@@ -67,9 +68,10 @@ class OffsetBatch:
 
 
 def offset_residuals(params: np.ndarray, batch: OffsetBatch, R0: np.ndarray, camera: CameraModel, radius: float,
-                     jacobian: bool = False):
+                     jacobian: bool = False, sparse: bool = False):
     """Eq. 47 residuals (2M,) = detected - predicted pixels for params (C_X, C_Y, h_1 .. h_{K-1});
-    with `jacobian`, also d residuals / d params (2M, K + 1)."""
+    with `jacobian`, also d residuals / d params (2M, K + 1), a scipy.sparse matrix with `sparse` (each
+    row depends on C_X, C_Y and the two keyframes' heights only)."""
     cx, cy = params[0], params[1]
     h = np.r_[0.0, params[2:]]
     n_kf = len(h)
@@ -85,17 +87,17 @@ def offset_residuals(params: np.ndarray, batch: OffsetBatch, R0: np.ndarray, cam
     res = (batch.uv_a - uv).ravel()
     dX = wall_offset_jacobian(X, R0, batch.eta_b)  # (M, 3, 3) w.r.t. C_b
     m = len(batch)
-    dxc = np.zeros((m, 3, n_kf + 2))  # columns C_X, C_Y, h_0 .. h_{K-1}
     # C_X and C_Y move both cameras; h_b moves the ray's origin, h_a the observing camera
-    dxc[:, :, 0] = (dX[:, :, 0] - np.array([1.0, 0.0, 0.0])) @ R0
-    dxc[:, :, 1] = (dX[:, :, 1] - np.array([0.0, 1.0, 0.0])) @ R0
-    col_b = batch.b + 2
-    col_a = batch.a + 2
-    rows = np.arange(m)
-    dxc[rows, :, col_b] += dX[:, :, 2] @ R0
-    dxc[rows, :, col_a] -= E_H @ R0
-    J = -np.einsum("mij,mjk->mik", Jp, dxc)[:, :, [0, 1] + list(range(3, n_kf + 2))]  # h_0 = 0 is fixed
-    return res, J.reshape(2 * m, -1)
+    dxc = np.stack([(dX[:, :, 0] - np.array([1.0, 0.0, 0.0])) @ R0, (dX[:, :, 1] - np.array([0.0, 1.0, 0.0])) @ R0,
+                    dX[:, :, 2] @ R0, np.broadcast_to(-E_H @ R0, (m, 3))], axis=-1)  # (M, 3, 4)
+    blocks = -np.einsum("mij,mjk->mik", Jp, dxc)  # (M, 2, 4): C_X, C_Y, h_b, h_a
+    cols = np.stack([np.zeros(m, int), np.ones(m, int), batch.b + 1, batch.a + 1], axis=-1)  # h_k -> column k + 1
+    live = (np.arange(4) < 2) | (cols != 1)
+    rows = np.broadcast_to(2 * np.arange(m)[:, None, None] + np.arange(2)[None, :, None], (m, 2, 4))
+    cols2 = np.broadcast_to(cols[:, None, :], (m, 2, 4))
+    keep = np.broadcast_to(live[:, None, :], (m, 2, 4))  # h_0 = 0 is fixed: no column
+    J = csr_matrix((blocks[keep], (rows[keep], cols2[keep])), shape=(2 * m, n_kf + 1))
+    return res, (J if sparse else J.toarray())
 
 
 def _wall_from_centres(C: np.ndarray, d: np.ndarray, radius: float) -> np.ndarray:
@@ -105,6 +107,37 @@ def _wall_from_centres(C: np.ndarray, d: np.ndarray, radius: float) -> np.ndarra
     c = C[:, 0] ** 2 + C[:, 1] ** 2 - radius**2
     kappa = (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))) / np.maximum(2 * a, 1e-300)  # the positive root (eq. 37)
     return C + kappa[:, None] * d
+
+
+def _levenberg_marquardt(fun, jac, x, iterations: int, tolerance: float = 1e-12) -> np.ndarray:
+    """Levenberg-Marquardt on the normal equations: the Jacobian is sparse and tall (pairs x keyframes),
+    J^T J is small."""
+    r = fun(x)
+    cost = float(r @ r)
+    lam = 1e-4
+    for _ in range(iterations):
+        J = jac(x)
+        H = (J.T @ J).toarray()
+        g = J.T @ r
+        d = np.diag(H).copy()
+        while lam < 1e12:
+            try:
+                step = np.linalg.solve(H + lam * np.diag(d + 1e-12 * d.mean()), -g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            r_new = fun(x + step)
+            c_new = float(r_new @ r_new)
+            if np.isfinite(c_new) and c_new <= cost:
+                done = cost - c_new <= tolerance * cost
+                x, r, cost, lam = x + step, r_new, c_new, max(lam * 0.1, 1e-12)
+                break
+            lam *= 10
+        else:
+            break
+        if done:
+            break
+    return x
 
 
 @dataclass(frozen=True)
@@ -124,8 +157,8 @@ def optimise_offset(batch: OffsetBatch, camera: CameraModel, radius: float, R0: 
     x = x0
     for _ in range(2):  # solve, drop pairs beyond max(3 x 1.4826 MAD, 1 px) (mismatches), solve again
         fun = lambda x: offset_residuals(x, batch, R0, camera, radius)  # noqa: E731
-        jac = lambda x: offset_residuals(x, batch, R0, camera, radius, jacobian=True)[1]  # noqa: E731
-        x = least_squares(fun, x, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, max_nfev=200).x
+        jac = lambda x: offset_residuals(x, batch, R0, camera, radius, jacobian=True, sparse=True)[1]  # noqa: E731
+        x = _levenberg_marquardt(fun, jac, x, iterations=100)
         err = np.linalg.norm(fun(x).reshape(-1, 2), axis=1)
         keep = err <= max(3 * 1.4826 * np.median(err), outlier_px)
         if keep.all() or keep.sum() < len(x0):
