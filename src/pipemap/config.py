@@ -169,6 +169,10 @@ class DenseSettings(_Section):
     gain_correct: bool = Field(True, description="divide by the dataset's gain mask when it has one (section 3.2)")
     stitch_min_shift_px: float = Field(50.0, ge=0, description="frames pasted into the stitched image are at least "
                                        "this far apart along the pipe (report: 50 px)")
+    full_search_reference_fraction: float | None = Field(
+        0.2, gt=0, lt=0.5, description="full search: register against a reference frame until the content has "
+        "moved this fraction of the image width, so that integer rounding errs once per reference rather than "
+        "once per frame (a steady speed rounds the same way every frame); None = adjacent frames (Algorithm 1)")
 
 
 class SparseSettings(_Section):

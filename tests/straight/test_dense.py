@@ -57,6 +57,21 @@ def test_full_search_rounds_a_fractional_shift(texture):
     np.testing.assert_array_equal(s.t, (4.0, -2.0))
 
 
+def test_full_search_reference_frames_stop_rounding_from_accumulating(texture):
+    """A steady 3.3 px a frame: adjacent pairs round to 3 every time and lose 0.3 px a frame; against a
+    reference frame the rounding errs once per reference (section 4.2.1 with keyframe-style references)."""
+    frames = [_shifted(texture, (3.3 * k, 0.0)) for k in range(30)]
+    dense = Settings().dense
+    dense.search_px = 8
+    keyed, _ = estimate_shifts(frames, "dense-full-search", dense)
+    dense.full_search_reference_fraction = None
+    pairwise, _ = estimate_shifts(frames, "dense-full-search", dense)
+    true = 3.3 * np.arange(1, 30)
+    assert abs(np.cumsum(pairwise[:, 0])[-1] - true[-1]) > 8  # 29 x 0.3 px lost
+    assert np.abs(np.cumsum(keyed[:, 0]) - true).max() < 1.0
+    np.testing.assert_array_equal(keyed[:, 1], 0.0)
+
+
 def test_lucas_kanade_is_subpixel(texture):
     t = np.array([5.37, -2.21])
     s = lucas_kanade(texture, _shifted(texture, t), init=(0, 0), levels=3, iterations=20)
@@ -117,7 +132,9 @@ def frames_and_truth(six_inch):
 ])
 def test_per_frame_shift_matches_ground_truth(frames_and_truth, method, median_px, max_px):
     images, rows, true_shift = frames_and_truth
-    shifts, _ = estimate_shifts(images, method, _settings().dense, rows)
+    dense = _settings().dense
+    dense.full_search_reference_fraction = None  # adjacent pairs, as Algorithm 1
+    shifts, _ = estimate_shifts(images, method, dense, rows)
     err = np.abs(shifts - true_shift)
     assert np.median(err[:, 0]) < median_px and err[:, 0].max() < max_px, (method, err[:, 0])
     assert err[:, 1].max() < max_px, (method, err[:, 1])
@@ -128,7 +145,10 @@ def test_per_frame_shift_matches_ground_truth(frames_and_truth, method, median_p
 def test_every_metric_tracks_the_render(frames_and_truth, metric):
     images, rows, true_shift = frames_and_truth
     shifts, _ = estimate_shifts(images, "dense-full-search", _settings(metric).dense, rows)
-    assert np.abs(shifts - true_shift).max() < 0.6
+    # against reference frames the position (sum of shifts) carries one rounding per reference, not per frame;
+    # what remains is the translation model's bias under the 70 deg lens's foreshortening (report 6.2.3)
+    drift = np.abs(np.cumsum(shifts - true_shift, axis=0))
+    assert drift.max() < 4.0 and np.abs(true_shift.sum(axis=0))[0] > 300, drift.max(axis=0)
 
 
 def test_lk_is_better_than_integer_full_search(frames_and_truth):

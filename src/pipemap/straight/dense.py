@@ -69,23 +69,35 @@ def estimate_shifts(images: Iterable[np.ndarray], method: str, dense: DenseSetti
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Shift of every adjacent pair of rectified images: (N-1, 2) pixels and (N-1,) scores.
 
+    The full search registers each frame against a reference frame kept until the content has moved
+    dense.full_search_reference_fraction of the image width (then the frame becomes the reference):
+    its integer rounding then errs once per reference, not once per frame, where a steady speed would
+    round the same way every frame. With the fraction None (and for the other methods) every frame is
+    registered against the one before, as the report's Algorithm 1 does.
+
     on_frame(k, image, shift) after each image; shift is the pair (k-1, k)'s, zeros for k = 0."""
     if method not in DENSE_METHODS:
         raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})", key="method")
+    fraction = dense.full_search_reference_fraction if method == "dense-full-search" else None
     shifts, scores = [], []
-    prev, prior = None, np.zeros(2)
+    ref = None
+    ref_c = c_prev = velocity = np.zeros(2)  # content displacements from the first frame
     for k, img in enumerate(images):
         t = np.zeros(2)
-        if prev is not None:
-            s = register_pair(prev, img, method, dense, prior, rows)
-            t = s.t
+        if ref is not None:
+            since_ref = c_prev - ref_c
+            prior = since_ref + (velocity if dense.predict else 0.0)
+            s = register_pair(ref, img, method, dense, prior, rows)
+            t = s.t - since_ref
             shifts.append(t)
             scores.append(s.score)
-            if dense.predict and np.all(np.isfinite(t)):
-                prior = t
+            if np.all(np.isfinite(t)):
+                velocity = t
+                c_prev = c_prev + t
+        if ref is None or fraction is None or abs(c_prev[0] - ref_c[0]) >= fraction * img.shape[1]:
+            ref, ref_c = img, c_prev
         if on_frame is not None:
             on_frame(k, img, t)
-        prev = img
     return np.reshape(np.array(shifts, float), (-1, 2)), np.array(scores, float)
 
 
