@@ -14,6 +14,9 @@ Every dataset gets the gain mask of its camera (report section 3.2): the white-c
 that robot (route 6in or 16in). zeta comes from the geometry with the camera's mount offset
 read from the simulator's preset (`offset_down_m`: the camera rides below the axis looking up).
 
+Full search registers each frame against a reference frame (dense.full_search_reference_fraction)
+so that its integer rounding does not accumulate at a steady speed; the report's adjacent pairs
+lost about 2 % on the 16-inch run at the report's density (--spacing-16in 0).
 Every method (and each --metrics metric for full search and hybrid; --raw: also without the gain
 mask) runs on every case; each result folder is judged by pipemap.evaluation.evaluate
 (distance travelled along the pipe, eqs. 50-51). Prints the table and writes

@@ -12,7 +12,9 @@ spacing renders fewer, wider-spaced frames. Every dataset gets the gain mask of 
 (report section 3.2: the white-card preset of that robot).
 
 sparse-cylinder runs on every case with its default settings: no camera offset is given, the
-method estimates it (the initial batch, 5.3.2), and no scale is aligned. With --measured-offset the
+method estimates it (the initial batch, 5.3.2; where that batch says the images cannot determine it,
+as with the 16-inch pipe's 25 deg lens, again over offset_long_keyframes keyframes: "long batch" in
+the table), and no scale is aligned. With --measured-offset the
 run is given the camera's offset from the axis as the report's authors measured theirs by hand
 (eq. 45): the first true camera centre rounded to the millimetre, flagged as measured, so that the
 batch keeps it where it cannot determine the offset itself (run.json says which happened). --set
@@ -80,7 +82,7 @@ def run_case(args, case: str, root: Path) -> dict:
                       "batch_sigma_mm": None if run["camera_offset_m"].get("batch_sigma_m") is None else
                       [round(x * 1e3, 3) for x in run["camera_offset_m"]["batch_sigma_m"]],
                       "source": run["camera_offset_m"].get("source")},
-        "overrides": overrides,
+        "overrides": overrides, "refinement_dof": run.get("refinement_dof"),
         "frames_per_second": round(res.frames / (res.seconds["features"] + res.seconds["motion"]), 2),
         "seconds": {k: round(v, 1) for k, v in res.seconds.items()} | {"wall": round(wall, 1)},
         **distance_rows(d), "report_abs_error_pct": REPORT[case],

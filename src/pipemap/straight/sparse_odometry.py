@@ -8,7 +8,9 @@ their common offset (C_X, C_Y) and heights are optimised on image reprojection (
 estimates in S(g) recomputed. Every `refine_every` keyframes the previous 2N are refined with six
 degrees of freedom, `refine_passes` times (5.3.3); the end of the run gets the same treatment.
 Where the batch found the camera's offset beyond what the images determine, the refinement keeps
-the camera mount and moves each keyframe only about and along the axis (`refine_dof`).
+the camera mount and moves each keyframe only about and along the axis (`refine_dof`), and, unless
+the offset was measured, eqs. 45-49 run again over `offset_long_keyframes` keyframes (or the whole
+of a shorter run).
 """
 
 from __future__ import annotations
@@ -182,6 +184,8 @@ class SparseOdometry:
     def finish(self) -> None:
         if self.offset is None and len(self.keyframes) >= 2:
             self.optimise_offset()
+        if self._wants_long_batch() and len(self.keyframes) > self.sparse.offset_batch_keyframes:
+            self._long_batch(self.keyframes)  # a run shorter than the long batch: all of it
         a = len(self.keyframes) - 1
         if self.sparse.refine_at_end and a > self.refined_at:
             self.refine(a)
