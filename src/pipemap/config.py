@@ -62,7 +62,7 @@ class FrontendSettings(_Section):
                                 "(affine Lucas-Kanade), so that their error does not grow with their length")
     anchor_max_shift_px: float = Field(1.5, gt=0, description="an anchor match farther than this from the ZNCC one is refused")
     anchor_min_zncc: float = Field(0.7, gt=-1, le=1, description="an anchor match correlating less than this is refused")
-    anchor_iterations: int = Field(10, gt=0, description="Lucas-Kanade iterations of the anchor match")
+    anchor_iterations: int = Field(6, gt=0, description="Lucas-Kanade iterations of the anchor match")
 
 
 class ClassificationSettings(_Section):

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipemap.frontend.anchor import anchor_templates, identity_warps, refine_to_anchors
+from pipemap.frontend.anchor import anchor_templates, refine_to_anchors
 
 PATCH = 11
 
@@ -39,9 +39,10 @@ def test_recovers_a_warped_shifted_relit_patch():
     shift = np.array([0.37, -0.61])
     moved = _warped(img, A, shift, centre, gain=1.2, offset=5.0)
     truth = centre + (pts - centre) @ A.T + shift
-    T = anchor_templates(img, pts, PATCH)
+    anchors = anchor_templates(img, pts, PATCH)
     start = truth + np.random.default_rng(1).uniform(-0.6, 0.6, truth.shape)
-    ok, pos, warps = refine_to_anchors(moved, T, start, identity_warps(len(pts)), PATCH)
+    ok, pos, anchors = refine_to_anchors(moved, anchors, start, PATCH, iterations=10)
+    warps = anchors.warps
     assert ok.all()
     # Bilinear resampling of the moved image alone leaves a few hundredths of a pixel.
     assert np.abs(pos - truth).max() < 0.08 and np.median(np.linalg.norm(pos - truth, axis=1)) < 0.05
@@ -54,8 +55,7 @@ def test_error_does_not_grow_along_a_track():
     img = _texture(seed=2)
     pts = _grid_points(5, 80, 160)
     centre = np.array([120.0, 120.0])
-    T = anchor_templates(img, pts, PATCH)
-    warps = identity_warps(len(pts))
+    anchors = anchor_templates(img, pts, PATCH)
     pos = pts.copy()
     errors = []
     for k in range(1, 21):
@@ -64,7 +64,7 @@ def test_error_does_not_grow_along_a_track():
         truth = centre + (pts - centre) @ A.T + shift
         frame = _warped(img, A, shift, centre)
         start = pos + (truth - pos) + np.random.default_rng(k).uniform(-0.5, 0.5, truth.shape)  # a ZNCC-like guess
-        ok, pos, warps = refine_to_anchors(frame, T, start, warps, PATCH)
+        ok, pos, anchors = refine_to_anchors(frame, anchors, start, PATCH)
         assert ok.mean() > 0.9
         errors.append(np.median(np.linalg.norm(pos - truth, axis=1)))
     assert max(errors) < 0.06
@@ -75,20 +75,20 @@ def test_a_different_patch_is_refused_and_keeps_its_inputs():
     img = _texture(seed=3)
     other = _texture(seed=4)
     pts = _grid_points(3)
-    T = anchor_templates(img, pts, PATCH)
+    anchors = anchor_templates(img, pts, PATCH)
+    anchors.warps *= 1.01
     start = pts + 0.2
-    W = identity_warps(len(pts)) * 1.01
-    ok, pos, warps = refine_to_anchors(other, T, start, W, PATCH)
+    ok, pos, out = refine_to_anchors(other, anchors, start, PATCH)
     assert not ok.any()
-    assert np.array_equal(pos, start) and np.array_equal(warps, W)
+    assert np.array_equal(pos, start) and np.array_equal(out.warps, anchors.warps)
 
 
 def test_empty_input():
     img = _texture()
-    T = anchor_templates(img, np.zeros((0, 2)), PATCH)
-    assert T.shape == (0, PATCH * PATCH)
-    ok, pos, warps = refine_to_anchors(img, T, np.zeros((0, 2)), identity_warps(0), PATCH)
-    assert ok.shape == (0,) and pos.shape == (0, 2) and warps.shape == (0, 2, 2)
+    anchors = anchor_templates(img, np.zeros((0, 2)), PATCH)
+    assert anchors.templates.shape == (0, PATCH * PATCH) and len(anchors) == 0
+    ok, pos, out = refine_to_anchors(img, anchors, np.zeros((0, 2)), PATCH)
+    assert ok.shape == (0,) and pos.shape == (0, 2) and out.warps.shape == (0, 2, 2)
 
 
 @pytest.mark.parametrize("shift_px", [1.0, 3.0])
@@ -96,6 +96,6 @@ def test_shift_limit(shift_px):
     img = _texture(seed=5)
     pts = _grid_points(3)
     moved = _warped(img, np.eye(2), np.array([shift_px, 0.0]), np.array([120.0, 120.0]))
-    ok, _, _ = refine_to_anchors(moved, anchor_templates(img, pts, PATCH), pts, identity_warps(len(pts)), PATCH,
-                                 iterations=20, max_shift_px=1.5)
+    ok, _, _ = refine_to_anchors(moved, anchor_templates(img, pts, PATCH), pts, PATCH, iterations=20,
+                                 max_shift_px=1.5)
     assert ok.all() if shift_px < 1.5 else not ok.any()

@@ -7,19 +7,22 @@ keyframes), and those long tracks bent every tee of a loop by tenths of a degree
 continued track is matched once more against the patch it had in the keyframe where it was first
 seen, so that its error no longer grows with its length.
 
-Lucas-Kanade in its forward-additive form (Baker & Matthews 2004) with an affine warp, since the
-fisheye compresses and stretches a patch as it crosses the view, and a gain and an offset for the
-light that moves with the robot. The warp found at one keyframe starts the search at the next.
-A result that moves more than `max_shift_px` from the ZNCC position, or whose warped patch
-correlates with the template below `min_zncc`, keeps the ZNCC position and its previous warp.
+Lucas-Kanade in its inverse-compositional form (Baker & Matthews 2004) with an affine warp, since
+the fisheye compresses and stretches a patch as it crosses the view: the steepest-descent images
+and the Hessian belong to the template and are computed once, when the track starts. Both the
+template and the warped patch are normalised to zero mean and unit norm, which takes out the gain
+and offset of the light that moves with the robot. The warp found at one keyframe starts the
+search at the next. A result that moves more than `max_shift_px` from the ZNCC position, or whose
+warped patch correlates with the template below `min_zncc`, keeps the ZNCC position and its
+previous warp.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
-
-_PARAMS = 8  # du, dv, four affine terms, gain, offset
 
 
 def _offsets(patch: int) -> np.ndarray:
@@ -44,67 +47,92 @@ def _sample(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return top * (1 - b) + bottom * b
 
 
-def anchor_templates(image: np.ndarray, points: np.ndarray, patch: int) -> np.ndarray:
-    """(N, patch^2) float32 patches of `image` centred on `points` (N, 2), bilinear."""
+def _normalised(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of x with zero mean and unit norm, and their norms before scaling."""
+    x = x - x.mean(axis=-1, keepdims=True)
+    norm = np.linalg.norm(x, axis=-1, keepdims=True)
+    return x / np.maximum(norm, 1e-12), norm
+
+
+@dataclass
+class Anchors:
+    """Per track: the normalised template (N, P), its steepest-descent images (N, P, 6) for the affine
+    parameters (du, dv, a11, a12, a21, a22), the inverse Hessian (N, 6, 6) and the current warp (N, 2, 2)."""
+
+    templates: np.ndarray
+    steepest: np.ndarray
+    inverse_hessian: np.ndarray
+    warps: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.templates)
+
+    def take(self, rows) -> "Anchors":
+        return Anchors(self.templates[rows], self.steepest[rows], self.inverse_hessian[rows], self.warps[rows])
+
+    @staticmethod
+    def concatenate(parts: list["Anchors"]) -> "Anchors":
+        return Anchors(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                         ("templates", "steepest", "inverse_hessian", "warps")))
+
+
+def anchor_templates(image: np.ndarray, points: np.ndarray, patch: int) -> Anchors:
+    """Anchors of the patches of `image` centred on `points` (N, 2), identity warps."""
     pts = np.asarray(points, np.float32).reshape(-1, 2)
     g = _offsets(patch)
-    if len(pts) == 0:
-        return np.zeros((0, len(g)), np.float32)
+    n = len(pts)
+    if n == 0:
+        P = len(g)
+        return Anchors(np.zeros((0, P), np.float32), np.zeros((0, P, 6), np.float32),
+                       np.zeros((0, 6, 6), np.float32), np.zeros((0, 2, 2), np.float32))
     image = np.ascontiguousarray(image, np.float32)
-    return _sample(image, pts[:, 0, None] + g[None, :, 0], pts[:, 1, None] + g[None, :, 1])
+    u, v = pts[:, 0, None] + g[None, :, 0], pts[:, 1, None] + g[None, :, 1]
+    T, norm = _normalised(_sample(image, u, v))
+    gu = _sample(cv2.Scharr(image, cv2.CV_32F, 1, 0, scale=1.0 / 32.0), u, v) / np.maximum(norm, 1e-12)
+    gv = _sample(cv2.Scharr(image, cv2.CV_32F, 0, 1, scale=1.0 / 32.0), u, v) / np.maximum(norm, 1e-12)
+    sd = np.stack([gu, gv, gu * g[:, 0], gu * g[:, 1], gv * g[:, 0], gv * g[:, 1]], axis=2)
+    H = np.einsum("npa,npb->nab", sd, sd, dtype=np.float64)
+    H += np.eye(6) * (1e-6 * np.trace(H, axis1=1, axis2=2) / 6 + 1e-12)[:, None, None]
+    return Anchors(T.astype(np.float32), sd.astype(np.float32), np.linalg.inv(H).astype(np.float32),
+                   np.tile(np.eye(2, dtype=np.float32), (n, 1, 1)))
 
 
-def identity_warps(n: int) -> np.ndarray:
-    return np.tile(np.eye(2, dtype=np.float32), (n, 1, 1))
-
-
-def refine_to_anchors(image: np.ndarray, templates: np.ndarray, positions: np.ndarray, warps: np.ndarray,
-                      patch: int, iterations: int = 10, max_shift_px: float = 1.5,
-                      min_zncc: float = 0.7) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(ok (N,), positions (N, 2), warps (N, 2, 2)) of the templates (N, patch^2) in `image`, starting
-    from `positions` (N, 2) and `warps` (N, 2, 2); rows that fail keep their inputs."""
+def refine_to_anchors(image: np.ndarray, anchors: Anchors, positions: np.ndarray, patch: int, iterations: int = 6,
+                      max_shift_px: float = 1.5, min_zncc: float = 0.7) -> tuple[np.ndarray, np.ndarray, Anchors]:
+    """(ok (N,), positions (N, 2), anchors with the new warps) of the anchors in `image`, starting from
+    `positions` (N, 2) and the anchors' warps; rows that fail keep their position and warp."""
     pos0 = np.asarray(positions, np.float64).reshape(-1, 2)
     n = len(pos0)
-    A0 = np.asarray(warps, np.float64).reshape(n, 2, 2)
     if n == 0:
-        return np.zeros(0, bool), pos0.copy(), A0.copy()
+        return np.zeros(0, bool), pos0.copy(), anchors
     image = np.ascontiguousarray(image, np.float32)
-    T = np.asarray(templates, np.float32)
-    g = _offsets(patch)
-    du = cv2.Scharr(image, cv2.CV_32F, 1, 0, scale=1.0 / 32.0)
-    dv = cv2.Scharr(image, cv2.CV_32F, 0, 1, scale=1.0 / 32.0)
-    p, A = pos0.copy(), A0.copy()
-    gain, offset = np.ones(n), np.zeros(n)
-    live = np.ones(n, bool)
-    eye = np.eye(_PARAMS)
+    gu, gv = _offsets(patch).T
+    p, A = pos0.copy(), anchors.warps.astype(np.float64)
+    eye = np.eye(2)
+
+    def warped(p, A):
+        a = A.astype(np.float32)
+        u = np.float32(p[:, 0, None]) + a[:, 0, 0, None] * gu + a[:, 0, 1, None] * gv
+        v = np.float32(p[:, 1, None]) + a[:, 1, 0, None] * gu + a[:, 1, 1, None] * gv
+        return _normalised(_sample(image, u, v))[0]
+
     for _ in range(iterations):
-        idx = np.flatnonzero(live)
-        if idx.size == 0:
+        r = warped(p, A) - anchors.templates
+        d = np.einsum("nab,nb->na", anchors.inverse_hessian, np.einsum("npa,np->na", anchors.steepest, r))
+        # W(x; p, A) <- W(x; p, A) o W(x; d)^-1, W(x; d) = x + D x + d_t
+        inv = np.linalg.inv(eye + d[:, 2:6].reshape(-1, 2, 2))
+        A_new = A @ inv
+        p = p - np.einsum("nij,nj->ni", A_new, d[:, :2])
+        A = A_new
+        if np.abs(d[:, :2]).max() < 1e-3:
             break
-        where = p[idx, None, :] + np.einsum("pk,njk->npj", g, A[idx])
-        u, v = where[..., 0], where[..., 1]
-        I = _sample(image, u, v)
-        Gu = _sample(du, u, v) * gain[idx, None].astype(np.float32)
-        Gv = _sample(dv, u, v) * gain[idx, None].astype(np.float32)
-        r = gain[idx, None].astype(np.float32) * I + offset[idx, None].astype(np.float32) - T[idx]
-        J = np.stack([Gu, Gv, Gu * g[:, 0], Gu * g[:, 1], Gv * g[:, 0], Gv * g[:, 1], I, np.ones_like(I)], axis=2)
-        H = np.einsum("npa,npb->nab", J, J, dtype=np.float64)
-        b = np.einsum("npa,np->na", J, r, dtype=np.float64)
-        H += eye * (1e-6 * np.trace(H, axis1=1, axis2=2) / _PARAMS + 1e-9)[:, None, None]
-        d = -np.linalg.solve(H, b[..., None])[..., 0]
-        p[idx] += d[:, :2]
-        A[idx] += d[:, 2:6].reshape(-1, 2, 2)
-        gain[idx] += d[:, 6]
-        offset[idx] += d[:, 7]
-        live[idx] = np.linalg.norm(d[:, :2], axis=1) > 1e-3
-    where = p[:, None, :] + np.einsum("pk,njk->npj", g, A)
-    I = _sample(image, where[..., 0], where[..., 1]).astype(np.float64)
-    Ic, Tc = I - I.mean(axis=1, keepdims=True), T - T.mean(axis=1, keepdims=True)
-    zncc = np.sum(Ic * Tc, axis=1) / (np.linalg.norm(Ic, axis=1) * np.linalg.norm(Tc, axis=1) + 1e-12)
+    zncc = np.sum(warped(p, A) * anchors.templates, axis=1)
     det = np.linalg.det(A)
     ok = (np.all(np.isfinite(p), axis=1) & (np.linalg.norm(p - pos0, axis=1) <= max_shift_px) & (zncc >= min_zncc)
           & (det > 0.25) & (det < 4.0))
-    return ok, np.where(ok[:, None], p, pos0), np.where(ok[:, None, None], A, A0)
+    warps = np.where(ok[:, None, None], A, anchors.warps).astype(np.float32)
+    out = Anchors(anchors.templates, anchors.steepest, anchors.inverse_hessian, warps)
+    return ok, np.where(ok[:, None], p, pos0), out
 
 
-__all__ = ["anchor_templates", "identity_warps", "refine_to_anchors"]
+__all__ = ["Anchors", "anchor_templates", "refine_to_anchors"]

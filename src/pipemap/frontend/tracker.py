@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 from pipemap.camera import CameraModel
 from pipemap.config import FrontendSettings
 from pipemap.dataset import Frame
-from pipemap.frontend.anchor import anchor_templates, identity_warps, refine_to_anchors
+from pipemap.frontend.anchor import Anchors, anchor_templates, refine_to_anchors
 from pipemap.frontend.descriptors import describe, match_descriptors, smooth_for_templates
 from pipemap.frontend.guided import guided_zncc, predict_positions
 from pipemap.frontend.harris import bearing_map, detect_corners, flatten_lighting, valid_mask
@@ -47,8 +47,7 @@ class _Features:
     keypoints: np.ndarray
     bearings: np.ndarray
     descriptors: np.ndarray
-    templates: np.ndarray | None = None  # keyframes: each track's patch where it was first seen (anchor.py)
-    warps: np.ndarray | None = None  # ... and its affine warp into this keyframe
+    anchors: Anchors | None = None  # keyframes: each track's patch where it was first seen, warp into this one
 
 
 @dataclass
@@ -167,7 +166,7 @@ class FeatureTracker:
         """A keyframe with no link to the previous one (the first, or after tracking was lost)."""
         n = len(f.keypoints)
         if self.s.anchor_refine:
-            f.templates, f.warps = anchor_templates(f.image, f.keypoints, self.s.zncc_patch), identity_warps(n)
+            f.anchors = anchor_templates(f.image, f.keypoints, self.s.zncc_patch)
         kf = Keyframe(len(self.keyframes), f.index, f.timestamp, f.keypoints, f.bearings, self.ids.new(n),
                       np.zeros(n, bool), np.zeros(n, bool), np.eye(3), np.zeros(3), False)
         return self._emit(f, kf)
@@ -206,10 +205,9 @@ class FeatureTracker:
         g_desc, usable = describe(f.smoothed, g_pos, s.template_size, s.template_window)
         g_kf, g_pos, g_bear, g_desc = g_kf[usable], g_pos[usable], g_bear[usable], g_desc[usable]
         if s.anchor_refine:
-            kf_rows = np.concatenate([m.kf_idx, g_kf])
-            ok, pos, warps = refine_to_anchors(f.image, kf.templates[kf_rows], np.concatenate([matched_pts, g_pos]),
-                                               kf.warps[kf_rows], s.zncc_patch, s.anchor_iterations,
-                                               s.anchor_max_shift_px, s.anchor_min_zncc)
+            ok, pos, carried = refine_to_anchors(f.image, kf.anchors.take(np.concatenate([m.kf_idx, g_kf])),
+                                                 np.concatenate([matched_pts, g_pos]), s.zncc_patch,
+                                                 s.anchor_iterations, s.anchor_max_shift_px, s.anchor_min_zncc)
             if ok.any():
                 bear = np.concatenate([matched_bear, g_bear])
                 new_bear, _ = self.camera.unproject(pos[ok])
@@ -217,7 +215,6 @@ class FeatureTracker:
                 n_desc = len(m.kf_idx)
                 matched_pts, g_pos = pos[:n_desc], pos[n_desc:]
                 matched_bear, g_bear = bear[:n_desc], bear[n_desc:]
-            m_warps, g_warps = warps[:len(m.kf_idx)], warps[len(m.kf_idx):]
         # All matches together pin the pose down better than the descriptor matches alone.
         all_i = np.concatenate([kf.bearings[m.kf_idx], kf.bearings[g_kf]])
         all_j = np.concatenate([matched_bear, g_bear])
@@ -229,9 +226,9 @@ class FeatureTracker:
         d_ok, g_ok = consistent[:n_desc], consistent[n_desc:]
         kf_idx, frame_idx, matched_pts, matched_bear = m.kf_idx[d_ok], m.frame_idx[d_ok], matched_pts[d_ok], matched_bear[d_ok]
         g_kf, g_pos, g_bear, g_desc = g_kf[g_ok], g_pos[g_ok], g_bear[g_ok], g_desc[g_ok]
-        templates = warps = None
+        anchors = None
         if s.anchor_refine:
-            m_warps, g_warps = m_warps[d_ok], g_warps[g_ok]
+            carried = carried.take(np.concatenate([d_ok, g_ok]))
         # Harris corners of the frame: matched ones first, then unmatched ones not duplicating a guided match.
         rest = np.setdiff1d(np.arange(len(f.keypoints)), frame_idx)
         if len(g_pos) and len(rest) and s.duplicate_px > 0:
@@ -247,11 +244,11 @@ class FeatureTracker:
         guided = np.zeros(len(keypoints), bool)
         guided[n_desc + n_rest:] = True
         if s.anchor_refine:
-            templates = np.concatenate([kf.templates[kf_idx], anchor_templates(f.image, f.keypoints[rest], s.zncc_patch),
-                                        kf.templates[g_kf]])
-            warps = np.concatenate([m_warps, identity_warps(len(rest)), g_warps])
-        features = _Features(f.index, f.timestamp, f.image, f.smoothed, keypoints, bearings, descriptors, templates,
-                             warps)
+            n_kept = len(kf_idx)
+            anchors = Anchors.concatenate([carried.take(slice(0, n_kept)),
+                                           anchor_templates(f.image, f.keypoints[rest], s.zncc_patch),
+                                           carried.take(slice(n_kept, None))])
+        features = _Features(f.index, f.timestamp, f.image, f.smoothed, keypoints, bearings, descriptors, anchors)
         keyframe = Keyframe(len(self.keyframes), f.index, f.timestamp, keypoints, bearings, track_ids, inliers, guided,
                             R, t, True)
         return self._emit(features, keyframe)
