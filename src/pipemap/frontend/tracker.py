@@ -226,9 +226,6 @@ class FeatureTracker:
         d_ok, g_ok = consistent[:n_desc], consistent[n_desc:]
         kf_idx, frame_idx, matched_pts, matched_bear = m.kf_idx[d_ok], m.frame_idx[d_ok], matched_pts[d_ok], matched_bear[d_ok]
         g_kf, g_pos, g_bear, g_desc = g_kf[g_ok], g_pos[g_ok], g_bear[g_ok], g_desc[g_ok]
-        anchors = None
-        if s.anchor_refine:
-            carried = carried.take(np.concatenate([d_ok, g_ok]))
         # Harris corners of the frame: matched ones first, then unmatched ones not duplicating a guided match.
         rest = np.setdiff1d(np.arange(len(f.keypoints)), frame_idx)
         if len(g_pos) and len(rest) and s.duplicate_px > 0:
@@ -243,11 +240,12 @@ class FeatureTracker:
         inliers[n_desc:n_desc + n_rest] = False
         guided = np.zeros(len(keypoints), bool)
         guided[n_desc + n_rest:] = True
-        if s.anchor_refine:
-            n_kept = len(kf_idx)
-            anchors = Anchors.concatenate([carried.take(slice(0, n_kept)),
+        anchors = None
+        if s.anchor_refine:  # in the order of the keypoints: continued descriptor matches, new corners, guided
+            kept = carried.take(np.concatenate([d_ok, g_ok]))
+            anchors = Anchors.concatenate([kept.take(slice(0, n_desc)),
                                            anchor_templates(f.image, f.keypoints[rest], s.zncc_patch),
-                                           carried.take(slice(n_kept, None))])
+                                           kept.take(slice(n_desc, None))])
         features = _Features(f.index, f.timestamp, f.image, f.smoothed, keypoints, bearings, descriptors, anchors)
         keyframe = Keyframe(len(self.keyframes), f.index, f.timestamp, keypoints, bearings, track_ids, inliers, guided,
                             R, t, True)
