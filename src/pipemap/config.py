@@ -60,8 +60,10 @@ class FrontendSettings(_Section):
                                   "rims of dark openings no longer outscore the wall's corners (0: off)")
     anchor_refine: bool = Field(True, description="re-locate continued tracks against their first appearance "
                                 "(affine Lucas-Kanade), so that their error does not grow with their length")
-    anchor_max_shift_px: float = Field(1.5, gt=0, description="an anchor match farther than this from the ZNCC one is refused")
-    anchor_min_zncc: float = Field(0.7, gt=-1, le=1, description="an anchor match correlating less than this is refused")
+    anchor_max_shift_px: float = Field(1.5, gt=0, description="an anchor match farther than this from the ZNCC one is "
+                                       "refused, and its track ends")
+    anchor_min_zncc: float = Field(0.7, gt=-1, le=1, description="an anchor match correlating less than this is refused, "
+                                   "and its track ends")
     anchor_iterations: int = Field(6, gt=0, description="Lucas-Kanade iterations of the anchor match")
 
 

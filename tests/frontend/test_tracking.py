@@ -79,11 +79,13 @@ def test_accuracy_on_a_rendered_straight_pipe(sim_straight, tmp_path):
     run_tracking(sim_straight, out)
     f = evaluate_tracking(out, sim_straight, wall=sim_wall_for(SIM_STRAIGHT))
     # The acceptance targets are 0.1 deg, 2 deg, 90 %, 5 keyframes on longer renders
-    # (benchmarks/bench_frontend.py); these bounds catch a bad regression on 30 frames.
+    # (benchmarks/bench_frontend.py); these bounds catch a bad regression on 30 frames. A track
+    # ends where it no longer matches its first patch (anchor.py): fewer keyframes per track here
+    # (3.97), almost no false ones (99.7 % true).
     assert f["rotation_error_deg_median"] < 0.1
     assert f["direction_error_deg_median"] < 1.0
-    assert f["true_correspondence_fraction"] > 0.93
-    assert f["mean_track_length_straight"] >= 4.0
+    assert f["true_correspondence_fraction"] > 0.99
+    assert f["mean_track_length_straight"] >= 3.5
     assert f["keyframe_gap_max"] <= 3 * f["keyframe_gap_median"] and f["lost_keyframes"] == 0
 
 

@@ -13,8 +13,10 @@ and the Hessian belong to the template and are computed once, when the track sta
 template and the warped patch are normalised to zero mean and unit norm, which takes out the gain
 and offset of the light that moves with the robot. The warp found at one keyframe starts the
 search at the next. A result that moves more than `max_shift_px` from the ZNCC position, or whose
-warped patch correlates with the template below `min_zncc`, keeps the ZNCC position and its
-previous warp.
+warped patch correlates with the template below `min_zncc`, is refused (`ok` False: its inputs are
+returned), and the tracker ends that track: continued from the ZNCC position alone, such tracks
+were the ones that drifted (on paper-loop, tracks of 16+ keyframes went from 0.8 to 0.2 px RMS
+off one point once they were ended there).
 """
 
 from __future__ import annotations

@@ -219,9 +219,11 @@ class FeatureTracker:
         all_i = np.concatenate([kf.bearings[m.kf_idx], kf.bearings[g_kf]])
         all_j = np.concatenate([matched_bear, g_bear])
         R, t = refine_pose(R, t, all_i, all_j, self.threshold)
-        # Matches the refined pose rejects do not continue their track: a descriptor match's corner
-        # starts a new one, a guided match (no corner there) is dropped.
+        # Matches the refined pose (or the anchor match) rejects do not continue their track: a
+        # descriptor match's corner starts a new one, a guided match (no corner there) is dropped.
         consistent = sampson_angle(essential_from_pose(R, t), all_i, all_j) < s.track_threshold_factor * self.threshold
+        if s.anchor_refine:  # a track that no longer matches its first patch has drifted off its point
+            consistent &= ok
         n_desc = len(m.kf_idx)
         d_ok, g_ok = consistent[:n_desc], consistent[n_desc:]
         kf_idx, frame_idx, matched_pts, matched_bear = m.kf_idx[d_ok], m.frame_idx[d_ok], matched_pts[d_ok], matched_bear[d_ok]
