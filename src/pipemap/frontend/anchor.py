@@ -12,7 +12,11 @@ the fisheye compresses and stretches a patch as it crosses the view: the steepes
 and the Hessian belong to the template and are computed once, when the track starts. Both the
 template and the warped patch are normalised to zero mean and unit norm, which takes out the gain
 and offset of the light that moves with the robot. The warp found at one keyframe starts the
-search at the next. A result that moves more than `max_shift_px` from the ZNCC position, or whose
+search at the next. The warp also carries a second-order term, predicted rather than solved for:
+between views of the wall the image motion bends across a window, and an affine fit to a bent motion
+misplaces the window's centre (by -0.05 to -0.1 px towards the fisheye's centre near its rim after a
+few keyframes, which shortened every section). flow.py measures the bend from the neighbouring
+matches, and `carry` composes it along the track. A result that moves more than `max_shift_px` from the ZNCC position, or whose
 warped patch correlates with the template below `min_zncc`, is refused (`ok` False: its inputs are
 returned), and the tracker ends that track: continued from the ZNCC position alone, such tracks
 were the ones that drifted (on paper-loop, tracks of 16+ keyframes went from 0.8 to 0.2 px RMS
@@ -59,23 +63,36 @@ def _normalised(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 @dataclass
 class Anchors:
     """Per track: the normalised template (N, P), its steepest-descent images (N, P, 6) for the affine
-    parameters (du, dv, a11, a12, a21, a22), the inverse Hessian (N, 6, 6) and the current warp (N, 2, 2)."""
+    parameters (du, dv, a11, a12, a21, a22), the inverse Hessian (N, 6, 6), the current warp's linear
+    part (N, 2, 2) and its second derivatives (N, 2, 2, 2): the warp takes template offset x to
+    position + A x + 1/2 x^T C_k x in component k."""
 
     templates: np.ndarray
     steepest: np.ndarray
     inverse_hessian: np.ndarray
     warps: np.ndarray
+    curvature: np.ndarray
+
+    _FIELDS = ("templates", "steepest", "inverse_hessian", "warps", "curvature")
 
     def __len__(self) -> int:
         return len(self.templates)
 
     def take(self, rows) -> "Anchors":
-        return Anchors(self.templates[rows], self.steepest[rows], self.inverse_hessian[rows], self.warps[rows])
+        return Anchors(*(getattr(self, f)[rows] for f in self._FIELDS))
 
     @staticmethod
     def concatenate(parts: list["Anchors"]) -> "Anchors":
-        return Anchors(*(np.concatenate([getattr(p, f) for p in parts]) for f in
-                         ("templates", "steepest", "inverse_hessian", "warps")))
+        return Anchors(*(np.concatenate([getattr(p, f) for p in parts]) for f in Anchors._FIELDS))
+
+    def carry(self, jacobian: np.ndarray, hessian: np.ndarray) -> "Anchors":
+        """The warps' second derivatives after one more image motion y -> S(y) with Jacobian (N, 2, 2)
+        and second derivatives (N, 2, 2, 2) at each track: d2(S o W) = J_S d2W + A^T d2S A. The linear
+        parts are left to the match."""
+        A = self.warps.astype(np.float64)
+        c = (np.einsum("nkj,njab->nkab", jacobian, self.curvature.astype(np.float64))
+             + np.einsum("nia,nkij,njb->nkab", A, hessian, A))
+        return Anchors(self.templates, self.steepest, self.inverse_hessian, self.warps, c.astype(np.float32))
 
 
 def anchor_templates(image: np.ndarray, points: np.ndarray, patch: int) -> Anchors:
@@ -86,7 +103,8 @@ def anchor_templates(image: np.ndarray, points: np.ndarray, patch: int) -> Ancho
     if n == 0:
         P = len(g)
         return Anchors(np.zeros((0, P), np.float32), np.zeros((0, P, 6), np.float32),
-                       np.zeros((0, 6, 6), np.float32), np.zeros((0, 2, 2), np.float32))
+                       np.zeros((0, 6, 6), np.float32), np.zeros((0, 2, 2), np.float32),
+                       np.zeros((0, 2, 2, 2), np.float32))
     image = np.ascontiguousarray(image, np.float32)
     u, v = pts[:, 0, None] + g[None, :, 0], pts[:, 1, None] + g[None, :, 1]
     T, norm = _normalised(_sample(image, u, v))
@@ -96,7 +114,7 @@ def anchor_templates(image: np.ndarray, points: np.ndarray, patch: int) -> Ancho
     H = np.einsum("npa,npb->nab", sd, sd, dtype=np.float64)
     H += np.eye(6) * (1e-6 * np.trace(H, axis1=1, axis2=2) / 6 + 1e-12)[:, None, None]
     return Anchors(T.astype(np.float32), sd.astype(np.float32), np.linalg.inv(H).astype(np.float32),
-                   np.tile(np.eye(2, dtype=np.float32), (n, 1, 1)))
+                   np.tile(np.eye(2, dtype=np.float32), (n, 1, 1)), np.zeros((n, 2, 2, 2), np.float32))
 
 
 def refine_to_anchors(image: np.ndarray, anchors: Anchors, positions: np.ndarray, patch: int, iterations: int = 6,
@@ -108,14 +126,17 @@ def refine_to_anchors(image: np.ndarray, anchors: Anchors, positions: np.ndarray
     if n == 0:
         return np.zeros(0, bool), pos0.copy(), anchors
     image = np.ascontiguousarray(image, np.float32)
-    gu, gv = _offsets(patch).T
+    g = _offsets(patch)
+    gu, gv = g.T
     p, A = pos0.copy(), anchors.warps.astype(np.float64)
     eye = np.eye(2)
+    # the fixed second-order part of the warp, per track and template pixel: 1/2 x^T C_k x
+    bend = 0.5 * np.einsum("pa,nkab,pb->nkp", g, anchors.curvature, g).astype(np.float32)
 
     def warped(p, A):
         a = A.astype(np.float32)
-        u = np.float32(p[:, 0, None]) + a[:, 0, 0, None] * gu + a[:, 0, 1, None] * gv
-        v = np.float32(p[:, 1, None]) + a[:, 1, 0, None] * gu + a[:, 1, 1, None] * gv
+        u = np.float32(p[:, 0, None]) + a[:, 0, 0, None] * gu + a[:, 0, 1, None] * gv + bend[:, 0]
+        v = np.float32(p[:, 1, None]) + a[:, 1, 0, None] * gu + a[:, 1, 1, None] * gv + bend[:, 1]
         return _normalised(_sample(image, u, v))[0]
 
     for _ in range(iterations):
@@ -133,7 +154,7 @@ def refine_to_anchors(image: np.ndarray, anchors: Anchors, positions: np.ndarray
     ok = (np.all(np.isfinite(p), axis=1) & (np.linalg.norm(p - pos0, axis=1) <= max_shift_px) & (zncc >= min_zncc)
           & (det > 0.25) & (det < 4.0))
     warps = np.where(ok[:, None, None], A, anchors.warps).astype(np.float32)
-    out = Anchors(anchors.templates, anchors.steepest, anchors.inverse_hessian, warps)
+    out = Anchors(anchors.templates, anchors.steepest, anchors.inverse_hessian, warps, anchors.curvature)
     return ok, np.where(ok[:, None], p, pos0), out
 
 

@@ -24,6 +24,7 @@ from pipemap.config import FrontendSettings
 from pipemap.dataset import Frame
 from pipemap.frontend.anchor import Anchors, anchor_templates, refine_to_anchors
 from pipemap.frontend.descriptors import describe, match_descriptors, smooth_for_templates
+from pipemap.frontend.flow import local_quadratic_motion
 from pipemap.frontend.guided import guided_zncc, predict_positions
 from pipemap.frontend.harris import bearing_map, detect_corners, flatten_lighting, valid_mask
 from pipemap.frontend.keyframes import needs_keyframe
@@ -205,7 +206,13 @@ class FeatureTracker:
         g_desc, usable = describe(f.smoothed, g_pos, s.template_size, s.template_window)
         g_kf, g_pos, g_bear, g_desc = g_kf[usable], g_pos[usable], g_bear[usable], g_desc[usable]
         if s.anchor_refine:
-            ok, pos, carried = refine_to_anchors(f.image, kf.anchors.take(np.concatenate([m.kf_idx, g_kf])),
+            rows = np.concatenate([m.kf_idx, g_kf])
+            anchors = kf.anchors.take(rows)
+            if s.anchor_bend_neighbours:
+                src, dst = kf.keypoints[rows], np.concatenate([matched_pts, g_pos])
+                step_J, step_H, _ = local_quadratic_motion(src, dst, src, s.anchor_bend_neighbours)
+                anchors = anchors.carry(step_J, step_H)
+            ok, pos, carried = refine_to_anchors(f.image, anchors,
                                                  np.concatenate([matched_pts, g_pos]), s.zncc_patch,
                                                  s.anchor_iterations, s.anchor_max_shift_px, s.anchor_min_zncc)
             if ok.any():
