@@ -65,6 +65,10 @@ class FrontendSettings(_Section):
     anchor_min_zncc: float = Field(0.7, gt=-1, le=1, description="an anchor match correlating less than this is refused, "
                                    "and its track ends")
     anchor_iterations: int = Field(6, gt=0, description="Lucas-Kanade iterations of the anchor match")
+    anchor_max_stretch: float = Field(2.0, gt=1, description="a track ends once its patch is stretched (or shrunk) "
+                                      "more than this along any direction since it was first seen: a corner first "
+                                      "seen far down the pipe, foreshortened, places its point too loosely to be "
+                                      "followed when seen from close by")
     anchor_bend_neighbours: int = Field(32, ge=0, description="the anchor warp's second-order term is fitted to this "
                                         "many neighbouring matches per keyframe step (0: affine only; an affine fit "
                                         "to the bent image motion misplaces the patch centre)")

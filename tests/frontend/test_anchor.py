@@ -150,3 +150,18 @@ def test_a_bent_motion_is_matched_without_bias_once_its_bend_is_carried():
     bias1 = np.abs(np.mean(pos1 - truth, axis=0)).max()
     assert bias0 > 0.05  # what the affine match alone leaves
     assert bias1 < 0.015
+
+
+@pytest.mark.parametrize("stretch", [np.diag([2.3, 1.0]), np.diag([1.0, 1 / 2.3])])
+def test_a_patch_stretched_past_the_limit_is_refused(stretch):
+    img = _texture(seed=8)
+    pts = _grid_points(3, 100, 140)
+    centre = np.array([120.0, 120.0])
+    moved = _warped(img, stretch, np.zeros(2), centre)
+    truth = centre + (pts - centre) @ stretch.T
+    anchors = anchor_templates(img, pts, PATCH)
+    anchors.warps[:] = stretch  # carried from earlier keyframes
+    ok, pos, _ = refine_to_anchors(moved, anchors, truth, PATCH, max_stretch=3.0)
+    assert ok.all() and np.abs(pos - truth).max() < 0.1
+    ok, pos, _ = refine_to_anchors(moved, anchors, truth, PATCH, max_stretch=2.0)
+    assert not ok.any() and np.array_equal(pos, truth)

@@ -50,19 +50,20 @@ def local_quadratic_motion(src: np.ndarray, dst: np.ndarray, at: np.ndarray, nei
     w = np.ones(idx.shape)
     # Affine fits first (fewer unknowns, less pulled by a wrong match), then the quadratic one.
     for cols in (3, 3, 6, 6, 6):
-        Xc = X[..., :cols]
-        A = np.einsum("mki,mk,mkj->mij", Xc, w, Xc)
-        b = np.einsum("mki,mk,mkc->mic", Xc, w, Y)
+        Xc = np.ascontiguousarray(X[..., :cols])
+        XtW = np.swapaxes(Xc * w[..., None], 1, 2)
+        A = XtW @ Xc
+        b = XtW @ Y
         eig = np.linalg.eigvalsh(A)
         good = eig[:, 0] > 1e-6 * np.maximum(eig[:, -1], 1e-30)
         A[~good] = np.eye(cols)
         coef = np.linalg.solve(A, b)  # (M, cols, 2)
-        res = np.linalg.norm(np.einsum("mki,mic->mkc", Xc, coef) - Y, axis=2)
+        res = np.linalg.norm(Xc @ coef - Y, axis=2)
         mad = 1.4826 * np.median(res, axis=1, keepdims=True)
         w = (res <= np.maximum(3.0 * mad, max_residual_px)).astype(float)
     # A point at the edge of its neighbourhood (the rim of the view, the dark far end of the pipe)
     # would take its second derivatives from an extrapolation.
-    centred = np.linalg.norm(np.einsum("mk,mkc->mc", w, d) / np.maximum(w.sum(axis=1), 1)[:, None], axis=1) < 0.4
+    centred = np.linalg.norm((w[:, None, :] @ d)[:, 0] / np.maximum(w.sum(axis=1), 1)[:, None], axis=1) < 0.4
     ok = good & (w.sum(axis=1) >= 12) & centred
     s = scale[:, 0, 0]
     J[ok] = np.transpose(coef[ok, 1:3, :], (0, 2, 1)) / s[ok, None, None]

@@ -214,7 +214,8 @@ class FeatureTracker:
                 anchors = anchors.carry(step_J, step_H)
             ok, pos, carried = refine_to_anchors(f.image, anchors,
                                                  np.concatenate([matched_pts, g_pos]), s.zncc_patch,
-                                                 s.anchor_iterations, s.anchor_max_shift_px, s.anchor_min_zncc)
+                                                 s.anchor_iterations, s.anchor_max_shift_px, s.anchor_min_zncc,
+                                                 s.anchor_max_stretch)
             if ok.any():
                 bear = np.concatenate([matched_bear, g_bear])
                 new_bear, _ = self.camera.unproject(pos[ok])
