@@ -5,7 +5,7 @@ true image motion is affine across that window. Between two views of the pipe wa
 fisheye and the oblique view of the wall bend it, and an affine fit over a window of half-width w
 moves the centre by about H w^2 / 6, where H is the motion's second derivative. On the fisheye at
 640x480 that was +0.05 px outwards near the optical axis and -0.04 to -0.1 px inwards towards the
-rim after a few keyframes, always the same way, so it shortened every section by about 0.1 %.
+rim after a few keyframes, always the same way, so it shortened every section by 0.06-0.07 %.
 
 Here the motion around each point is fitted, from the matches of its neighbours, as a quadratic
 function of position, y = c + J d + 1/2 d^T H d (d = x - point). Nothing about the scene or camera is

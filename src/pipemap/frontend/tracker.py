@@ -208,12 +208,12 @@ class FeatureTracker:
         if s.anchor_refine:
             rows = np.concatenate([m.kf_idx, g_kf])
             anchors = kf.anchors.take(rows)
+            found = np.concatenate([matched_pts, g_pos])
             if s.anchor_bend_neighbours:
-                src, dst = kf.keypoints[rows], np.concatenate([matched_pts, g_pos])
-                step_J, step_H, _ = local_quadratic_motion(src, dst, src, s.anchor_bend_neighbours)
+                src = kf.keypoints[rows]
+                step_J, step_H, _ = local_quadratic_motion(src, found, src, s.anchor_bend_neighbours)
                 anchors = anchors.carry(step_J, step_H)
-            ok, pos, carried = refine_to_anchors(f.image, anchors,
-                                                 np.concatenate([matched_pts, g_pos]), s.zncc_patch,
+            ok, pos, carried = refine_to_anchors(f.image, anchors, found, s.zncc_patch,
                                                  s.anchor_iterations, s.anchor_max_shift_px, s.anchor_min_zncc,
                                                  s.anchor_max_stretch)
             if ok.any():
