@@ -12,20 +12,23 @@ the fisheye compresses and stretches a patch as it crosses the view: the steepes
 and the Hessian belong to the template and are computed once, when the track starts. Both the
 template and the warped patch are normalised to zero mean and unit norm, which takes out the gain
 and offset of the light that moves with the robot. The warp found at one keyframe starts the
-search at the next. The warp also carries a second-order term, predicted rather than solved for:
-between views of the wall the image motion bends across a window, and an affine fit to a bent motion
-misplaces the window's centre (by -0.05 to -0.1 px towards the fisheye's centre near its rim after a
-few keyframes, which shortened every section). flow.py measures the bend from the neighbouring
-matches, and `carry` composes it along the track. A result that moves more than `max_shift_px` from the ZNCC position, or whose
-warped patch correlates with the template below `min_zncc`, or whose warp stretches the patch by more
-than `max_stretch` along any direction, is refused (`ok` False: its inputs are returned), and the
-tracker ends that track. A patch first seen foreshortened, far down the pipe, fixes its point only
-loosely across the foreshortening, and seen from close by that looseness is magnified: on
-paper-loop, a third of the tracks started within 30 deg of the optical axis later lay more than
-1 px off their point, and such observations alone moved the tee centres by 0.05 %. Tracks
-continued from the ZNCC position alone after a failed match were the ones that drifted: continued from the ZNCC position alone, such tracks
-were the ones that drifted (on paper-loop, tracks of 16+ keyframes went from 0.8 to 0.2 px RMS
-off one point once they were ended there).
+search at the next.
+
+The warp also carries a second-order term, predicted rather than solved for: between views of the
+wall the image motion bends across a window, and an affine fit to a bent motion misplaces the
+window's centre (+0.04 px outwards near the optical axis, -0.06 px inwards at 70-80 deg after a few
+keyframes, which shortened every section). flow.py measures the bend from the neighbouring matches,
+and `carry` composes it along the track.
+
+A result that moves more than `max_shift_px` from the ZNCC position, whose warped patch correlates
+with the template below `min_zncc`, or whose warp stretches the patch by more than `max_stretch`
+along any direction, is refused (`ok` False: its inputs are returned), and the tracker ends that
+track. Continued from the ZNCC position alone, such tracks were the ones that drifted (on
+paper-loop, tracks of 16+ keyframes went from 0.8 to 0.2 px RMS off one point once they were ended
+there). A patch first seen foreshortened, far down the pipe, fixes its point only loosely across
+the foreshortening, and seen from close by that looseness is magnified: on paper-loop a third of
+the tracks started within 30 deg of the optical axis later lay more than 1 px off their point, and
+those observations alone moved the tee centres by about 0.05 %.
 """
 
 from __future__ import annotations
