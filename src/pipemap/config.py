@@ -98,6 +98,9 @@ class BundleSettings(_Section):
     mad_k: float = Field(3.0, gt=0, description="outliers beyond k x 1.4826 MAD of the Huber-weighted errors")
     outlier_passes: int = Field(3, ge=0, description="iterations at which MAD outlier removal runs")
     max_iterations: int = Field(20, gt=0)
+    bend_knot_m: float | None = Field(0.25, gt=0, description="knot spacing of the window cylinder's bent axis (pipe "
+                                      "runs sag and kink at joints by millimetres); None: a straight cylinder")
+    bend_kink_deg: float = Field(0.5, gt=0, description="prior sigma of the axis's change of direction at a knot")
     tee_fit_length_m: float = Field(1.0, gt=0, description="length of straight pipe fitted each side of a tee")
     tee_model: bool = Field(True, description="join the straight sections through each tee with the two-cylinder "
                             "model SBA (III-D); off: the VO's chaining and the end cylinders' meeting point")

@@ -133,6 +133,15 @@ def keyframe_labels(keyframes: list[Keyframe], classes: SequenceClass) -> np.nda
     return np.array([bool(lookup.get(kf.index, False)) for kf in keyframes], bool)
 
 
+def section_bend(settings: Settings) -> tuple[float, float, float] | None:
+    """(knot spacing, kink sigma rad, point sigma m) of the sections' bent axes, as the window solves
+    weigh them (a point's distance counts 1 / sqrt(tau) metres per unit); None: straight."""
+    b = settings.bundle
+    if b.bend_knot_m is None or b.tau <= 0:
+        return None
+    return b.bend_knot_m, float(np.radians(b.bend_kink_deg)), float(1.0 / np.sqrt(b.tau))
+
+
 def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> NetworkResult:
     """Stage 2: metric VO of the straight sections (III-C) chained through the junctions, then the
     sections' cylinders and the tee centres (III-D)."""
@@ -143,7 +152,8 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     result = vo.finish()
     t = time.perf_counter()
     sections = map_sections(result.sections, vo.keyframes, result.poses, result.points, result.point_tracks,
-                            dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m)
+                            dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m,
+                            section_bend(settings))
     junctions = map_junctions(result.sections, sections, result.poses)
     joins = []
     if settings.bundle.tee_model:
@@ -162,7 +172,8 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
             result.poses, result.points = poses, points
             # The cylinders hang from the corrected poses: fit them again (the tee centres were moved).
             sections = map_sections(result.sections, vo.keyframes, result.poses, result.points, result.point_tracks,
-                                    dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m)
+                                    dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m,
+                            section_bend(settings))
     elif len(junctions) <= 1:
         revisit = RevisitReport("no revisit")
     tees = name_junctions(junctions, dataset.radius_m, settings.loop_closure.same_junction_radii)

@@ -12,6 +12,11 @@ complement on the points (`pipemap.backend.schur`). Outliers: after each of `out
 LM, observations whose signed Huber-weighted errors sqrt(w) (u - u') lie more than
 max(mad_k * 1.4826 MAD, huber_px) from their median are set aside (and may come back at a later pass).
 
+A bent axis (`bend_knot_m`, `pipemap.geometry.bend`): the wall distance is taken from the straight
+axis plus offsets at knots every `bend_knot_m` along it, and the bend prior's squared residuals join
+eps. Pipe runs sag and kink at their joints by millimetres; a straight cylinder over a window of a
+few metres then pulls points and poses onto a straight line, which tilts the trajectory.
+
 Gauge: the poses in `fixed_poses` (default the first) are held. With the cylinder (tau > 0) its known
 radius fixes the scale, so one fixed pose is a complete gauge. With tau = 0 the scale is free: hold a
 second pose, or pass `fixed_distance=(i, j)` to keep |t_j - t_i| at its initial value (a stiff prior,
@@ -36,7 +41,8 @@ from pipemap.backend.robust import huber_cost, huber_weights, mad_inliers
 from pipemap.backend.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
 from pipemap.backend.staged_lm import solve_in_stages
 from pipemap.camera.base import CameraModel
-from pipemap.geometry.cylinder import Cylinder, CylinderFit, distance_jacobians, local_distance
+from pipemap.geometry.bend import AxisKnots
+from pipemap.geometry.cylinder import Cylinder, CylinderFit, distance_jacobians, local_distance, local_frame
 from pipemap.geometry.se3 import as_rt, retract, to_matrix, world_to_camera
 from pipemap.geometry.rotations import skew
 
@@ -92,7 +98,7 @@ class BundleState:
     R: np.ndarray  # (N, 3, 3)
     t: np.ndarray  # (N, 3)
     points: np.ndarray  # (M, 3)
-    cylinder: np.ndarray | None  # (4,) (gamma, beta, t_X, t_Y) relative to the frozen reference
+    cylinder: np.ndarray | None  # (gamma, beta, t_X, t_Y[, bend offsets (K, 2) raveled]) relative to the frozen reference
 
     def retract(self, pose_delta: np.ndarray, point_delta: np.ndarray, cylinder_delta=None) -> "BundleState":
         R, t = retract(self.R, self.t, pose_delta)
@@ -127,6 +133,9 @@ class BundleResult:
     cylinder_rms_m: float  # RMS distance of the inlier points to the cylinder (nan without one)
     converged: bool
     outlier_counts: list[int] = field(default_factory=list)  # outliers after each MAD pass
+    # The bent axis: knots along the cylinder frame's z (relative to the reference pose at the start
+    # of the solve) and offsets (K, 2) in that frame's x and y; None for a straight cylinder.
+    bend: tuple[AxisKnots, np.ndarray] | None = None
 
 
 class BundleProblem:
@@ -141,7 +150,8 @@ class BundleProblem:
                  cylinder: Cylinder | CylinderFit | None = None, cylinder_reference: int = 0,
                  cylinder_points: np.ndarray | None = None, tau: float = 2.5e5, huber_px: float = 1.0,
                  huber_m: float = 0.005, mad_k: float = 3.0, outlier_passes: int = 3, max_iterations: int = 20,
-                 fixed_distance: tuple[int, int] | None = None, distance_weight: float = 1e6):
+                 fixed_distance: tuple[int, int] | None = None, distance_weight: float = 1e6,
+                 bend_knot_m: float | None = None, bend_kink_deg: float = 0.5):
         self.camera = camera
         R, t, X, obs = problem_inputs(poses, points, observations)
         N, M = len(R), len(X)
@@ -164,6 +174,14 @@ class BundleProblem:
         self.radius = None if cylinder is None else cylinder.radius
         cyl0 = None if cylinder is None else cylinder.local_params(self.ref_R, self.ref_t)
         self.cylinder_points = np.ones(M, bool) if cylinder_points is None else np.asarray(cylinder_points, bool)
+        self.knots, self.bend_prior = None, None
+        if cyl0 is not None and bend_knot_m is not None and self.cylinder_points.any():
+            Rt, tt = local_frame(cyl0)
+            z = (world_to_camera(self.ref_R, self.ref_t, X[self.cylinder_points]) @ Rt.T + tt)[:, 2]
+            self.knots = AxisKnots.spanning(float(z.min()), float(z.max()), float(bend_knot_m))
+            P = self.knots.prior(2, np.radians(bend_kink_deg))
+            self.bend_prior = np.hstack([np.zeros((len(P), 4)), P])
+            cyl0 = np.concatenate([cyl0, np.zeros(2 * len(self.knots))])
         self.initial = BundleState(R, t, X, cyl0)
 
     @classmethod
@@ -171,7 +189,8 @@ class BundleProblem:
         """Take tau, the Huber thresholds, mad_k, outlier_passes and max_iterations from `Settings.bundle`."""
         b = getattr(settings, "bundle", settings)
         opts = dict(tau=b.tau, huber_px=b.huber_px, huber_m=b.huber_m, mad_k=b.mad_k,
-                    outlier_passes=b.outlier_passes, max_iterations=b.max_iterations)
+                    outlier_passes=b.outlier_passes, max_iterations=b.max_iterations,
+                    bend_knot_m=b.bend_knot_m, bend_kink_deg=b.bend_kink_deg)
         opts.update(kwargs)
         return cls(camera, poses, points, observations, **opts)
 
@@ -190,7 +209,7 @@ class BundleProblem:
             dist = None
             if self.uses_cylinder:
                 Xm = world_to_camera(self.ref_R, self.ref_t, state.points)
-                dist = local_distance(Xm, state.cylinder, self.radius, jacobians=False)
+                dist = local_distance(Xm, state.cylinder, self.radius, jacobians=False, knots=self.knots)
             return Linearisation(uv - self.obs.pixels, None, None, dist, None, None)
         uv, Jproj, _ = self.camera.project_jacobian(Xc)
         J_pose = np.empty((len(cam), 2, 6))
@@ -200,7 +219,7 @@ class BundleProblem:
         dist = Jd_point = Jd_cyl = None
         if self.uses_cylinder:
             dist, Jd_point, Jd_cyl, _ = distance_jacobians(state.points, state.cylinder, self.ref_R, self.ref_t,
-                                                           self.radius)
+                                                           self.radius, knots=self.knots)
         return Linearisation(uv - self.obs.pixels, J_pose, J_point, dist, Jd_point, Jd_cyl)
 
     def _active_points(self, inliers: np.ndarray) -> np.ndarray:
@@ -213,6 +232,8 @@ class BundleProblem:
         if lin.dist is not None:
             on = self._active_points(inliers) & self.cylinder_points
             c += self.tau * float(huber_cost(np.abs(lin.dist[on]), self.huber_m).sum())
+            if self.bend_prior is not None:
+                c += float(np.sum((self.bend_prior @ state.cylinder) ** 2))
         if self.fixed_distance is not None:
             c += self._distance_prior(state)[0] ** 2
         return c
@@ -246,7 +267,7 @@ class BundleProblem:
         gc = st.schur.to_cam(np.einsum("kai,ka->ki", wJc, e[on]))
         W = np.swapaxes(wJc, 1, 2) @ Jp[on]
         C = st.schur.C
-        q = 4 if self.uses_cylinder else 0
+        q = len(state.cylinder) if self.uses_cylinder else 0
         Ux, gx, Wx = np.zeros((q, q)), np.zeros(q), np.zeros((self.M, q, 3))
         active = st.active
         if q:
@@ -257,6 +278,9 @@ class BundleProblem:
             Ux = np.einsum("m,mi,mj->ij", wd, lin.Jd_cyl, lin.Jd_cyl)
             gx = lin.Jd_cyl.T @ (wd * lin.dist)
             Wx = np.einsum("m,mi,mj->mij", wd, lin.Jd_cyl, lin.Jd_point)
+            if self.bend_prior is not None:
+                Ux += self.bend_prior.T @ self.bend_prior
+                gx += self.bend_prior.T @ (self.bend_prior @ state.cylinder)
         # Points without inlier observations are frozen: an identity block with no gradient.
         V[~active] = np.eye(3)
         gp[~active] = 0.0
@@ -312,13 +336,16 @@ class BundleProblem:
         point_in = np.bincount(self.obs.point[inliers], minlength=self.M) >= 2
         cyl = params = None
         cyl_rms = float("nan")
+        bend = None
         if state.cylinder is not None:
-            cyl = Cylinder.from_local(state.cylinder, self.ref_R, self.ref_t, self.radius)
+            cyl = Cylinder.from_local(state.cylinder[:4], self.ref_R, self.ref_t, self.radius)
             params = cyl.local_params(state.R[self.ref], state.t[self.ref])
-            d = cyl.distance(state.points[point_in & self.cylinder_points])
+            d = lin.dist[point_in & self.cylinder_points] if lin.dist is not None else np.zeros(0)
             cyl_rms = float(np.sqrt(np.mean(d**2))) if d.size else float("nan")
+            if self.knots is not None:
+                bend = (self.knots, state.cylinder[4:].reshape(-1, 2).copy())
         return BundleResult(to_matrix(state.R, state.t), state.points.copy(), cyl, params, inliers, point_in,
-                            history, iterations, seconds, rms, cyl_rms, converged, counts)
+                            history, iterations, seconds, rms, cyl_rms, converged, counts, bend)
 
 
 class _Stage:

@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipemap.frontend.tracks import Keyframe
-from pipemap.geometry.cylinder import Cylinder, fit_cylinder
+from pipemap.geometry.bend import fit_bend
+from pipemap.geometry.cylinder import Cylinder, _axis_frame, fit_cylinder
 
 STRAIGHT_THROUGH_DEG = 20.0  # axes closer to parallel than this cannot place a tee centre
 
@@ -34,6 +35,9 @@ class MappedSection:
     start_h: float = 0.0  # axial extent of the section's camera centres on `cylinder`
     end_h: float = 0.0
     problems: list[str] = field(default_factory=list)
+    # The bent axis of the whole section: knots (axial coordinates on `cylinder`) and the axis's
+    # world offsets across it there (K, 3); None when straight.
+    bend: tuple[np.ndarray, np.ndarray] | None = None
 
     def to_dict(self) -> dict:
         def cyl(c):
@@ -41,6 +45,8 @@ class MappedSection:
                                            "direction": c.direction.round(6).tolist(), "radius": c.radius}
         return {"section": self.number, "first_keyframe": self.first, "last_keyframe": self.last,
                 "cylinder": cyl(self.cylinder), "start_cylinder": cyl(self.start), "end_cylinder": cyl(self.end),
+                "bend": None if self.bend is None else {"h": self.bend[0].round(6).tolist(),
+                                                         "offset": self.bend[1].round(7).tolist()},
                 "problems": self.problems}
 
 
@@ -82,6 +88,19 @@ def _fit(points: np.ndarray, centres: np.ndarray, R_ref, c_ref, radius: float, h
         return None
 
 
+def _fit_bend(cyl: Cylinder, points: np.ndarray, huber: float, knot_m: float, kink_rad: float,
+              sigma_m: float) -> tuple[np.ndarray, np.ndarray] | None:
+    near = np.abs(cyl.distance(points)) < 4 * huber  # wall points, not the fit's outliers
+    if near.sum() < 20:
+        return None
+    e1 = _axis_frame(cyl.direction)[:, 0]
+    e2 = np.cross(cyl.direction, e1)
+    v = points[near] - cyl.origin
+    h = v @ cyl.direction
+    knots, o = fit_bend(h, np.column_stack([v @ e1, v @ e2]), cyl.radius, knot_m, kink_rad, huber, sigma_m)
+    return knots.z, np.outer(o[:, 0], e1) + np.outer(o[:, 1], e2)
+
+
 def _near_path(points: np.ndarray, centres: np.ndarray, margin: float) -> np.ndarray:
     """Points whose projection on the path's chord falls within the chord (+- margin)."""
     d = centres[-1] - centres[0]
@@ -93,8 +112,11 @@ def _near_path(points: np.ndarray, centres: np.ndarray, margin: float) -> np.nda
 
 
 def map_sections(sections, keyframes: list[Keyframe], poses: np.ndarray, points: np.ndarray, tids: np.ndarray,
-                 radius: float, length_m: float = 1.0, huber_m: float = 0.005) -> list[MappedSection]:
-    """Cylinders of every straight section (see the module docstring). `sections`: the VO's SectionReports."""
+                 radius: float, length_m: float = 1.0, huber_m: float = 0.005,
+                 bend: tuple[float, float, float] | None = None) -> list[MappedSection]:
+    """Cylinders of every straight section (see the module docstring). `sections`: the VO's SectionReports.
+    bend = (knot spacing m, kink sigma rad, point sigma m): also fit each whole-section cylinder's
+    bent axis (`pipemap.geometry.bend.fit_bend`)."""
     order = np.argsort(tids)
     tids_sorted, points_sorted = tids[order], points[order]
     centres = poses[:, :3, 3]
@@ -108,6 +130,8 @@ def map_sections(sections, keyframes: list[Keyframe], poses: np.ndarray, points:
         C = centres[sec.first:sec.last + 1]
         keep = _near_path(P, C, radius)
         ms.cylinder = _fit(P[keep], C, poses[sec.first, :3, :3], C[0], radius, huber_m)
+        if ms.cylinder is not None and bend is not None:
+            ms.bend = _fit_bend(ms.cylinder, P[keep], huber_m, *bend)
         path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(C, axis=0), axis=1))])
         for end in ("start", "end"):
             sel = path <= length_m if end == "start" else path >= path[-1] - length_m
@@ -233,6 +257,11 @@ def wall_pieces(mapped: list[MappedSection], junctions: list[MappedJunction], up
             continue
         start = cyl.origin + h0 * cyl.direction
         end = cyl.origin + h1 * cyl.direction
-        out.append({"name": f"S{m.number}", "start": start.round(6).tolist(), "end": end.round(6).tolist(),
-                    "radius": cyl.radius, "up": [float(v) for v in up], "unroll": True})
+        piece = {"name": f"S{m.number}", "start": start.round(6).tolist(), "end": end.round(6).tolist(),
+                 "radius": cyl.radius, "up": [float(v) for v in up], "unroll": True}
+        if m.bend is not None:
+            h = sign * (m.bend[0] - h0)  # the knots as the piece's h, from its start
+            order = np.argsort(h)
+            piece["bend"] = {"h": h[order].round(6).tolist(), "offset": m.bend[1][order].round(7).tolist()}
+        out.append(piece)
     return out

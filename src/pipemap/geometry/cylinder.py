@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipemap.errors import PipemapError
+from pipemap.geometry.bend import AxisKnots, bent_distance
 from pipemap.geometry.rotations import look_rotation
 from pipemap.geometry.se3 import camera_point_jacobian, world_to_camera
 
@@ -82,39 +83,45 @@ def _check_radius(radius) -> float:
     return r
 
 
-def local_distance(points_ref, params, radius: float, jacobians: bool = True):
+def local_distance(points_ref, params, radius: float, jacobians: bool = True, knots: AxisKnots | None = None):
     """Signed distance of points given in the reference camera's frame (X_m = R_m X + t_m).
 
-    Returns d (M,) and, with jacobians, d d / d X_m (M, 3) and d d / d params (M, 4).
+    params is (gamma, beta, t_X, t_Y), followed with `knots` by the bent axis's offsets (K, 2) in the
+    cylinder frame's x and y (`pipemap.geometry.bend`). Returns d (M,) and, with jacobians,
+    d d / d X_m (M, 3) and d d / d params (M, 4 + 2 K).
     """
     Xm = np.asarray(points_ref, float)
-    g, b = float(params[0]), float(params[1])
+    p = np.asarray(params, float)
+    g, b = float(p[0]), float(p[1])
     Rx, Ry = rot_x(g), rot_y(b)
-    Rt, tt = local_frame(params)
+    Rt, tt = local_frame(p[:4])
     Xt = Xm @ Rt.T + tt
-    rho = np.hypot(Xt[:, 0], Xt[:, 1])
-    d = rho - radius
+    offsets = None if knots is None else p[4:].reshape(len(knots), 2)
+    d, n, i, f = bent_distance(Xt[:, :2], Xt[:, 2], knots, offsets, radius)
     if not jacobians:
         return d
-    safe = np.where(rho > 0, rho, 1.0)
-    n = np.stack([Xt[:, 0] / safe, Xt[:, 1] / safe, np.zeros(len(Xt))], -1)  # d d / d X~
     J_x = n @ Rt
-    J_p = np.empty((len(Xm), 4))
+    J_p = np.zeros((len(Xm), len(p)))
     J_p[:, 0] = np.einsum("mi,mi->m", n, np.cross(_EX, Xt - tt))  # d R_X / d gamma = [e_x]x R_X
     J_p[:, 1] = np.einsum("mi,mi->m", n @ Rx, np.cross(_EY, Xm @ Ry.T))  # R_X [e_y]x R_Y X_m
     J_p[:, 2] = n[:, 0]
     J_p[:, 3] = n[:, 1]
+    if knots is not None:
+        rows = np.arange(len(Xm))
+        for c in range(2):
+            J_p[rows, 4 + 2 * i + c] -= (1.0 - f) * n[:, c]
+            J_p[rows, 4 + 2 * (i + 1) + c] -= f * n[:, c]
     return d, J_x, J_p
 
 
-def distance_jacobians(points, params, ref_R, ref_t, radius: float):
+def distance_jacobians(points, params, ref_R, ref_t, radius: float, knots: AxisKnots | None = None):
     """Signed distance of world points to the cylinder `params` relative to the reference pose T_wc = (ref_R, ref_t).
 
-    Returns d (M,), d d / d X (M, 3), d d / d params (M, 4) and d d / d reference pose (M, 6) under the
-    right perturbation of `pipemap.geometry.se3` (for models where the reference pose itself is free).
+    Returns d (M,), d d / d X (M, 3), d d / d params (M, 4 [+ 2 K]) and d d / d reference pose (M, 6)
+    under the right perturbation of `pipemap.geometry.se3` (for models where the reference pose itself is free).
     """
     Xm = world_to_camera(ref_R, ref_t, np.asarray(points, float))
-    d, J_xm, J_p = local_distance(Xm, params, radius)
+    d, J_xm, J_p = local_distance(Xm, params, radius, knots=knots)
     J_X = J_xm @ np.asarray(ref_R).T
     J_ref = np.einsum("mi,mij->mj", J_xm, camera_point_jacobian(Xm))
     return d, J_X, J_p, J_ref

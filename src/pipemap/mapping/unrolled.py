@@ -60,7 +60,8 @@ def unrolled_image(pm: "PieceMap", px_m: float) -> tuple[np.ndarray, dict]:
         "metres_per_pixel_along": along,
         "metres_per_pixel_around": around,
         "axis": {"start": [float(v) for v in piece.start], "end": [float(v) for v in piece.end],
-                 "radius": piece.radius, "up": [float(v) for v in piece.up]},
+                 "radius": piece.radius, "up": [float(v) for v in piece.up],
+                 **({"bend": piece.to_dict()["bend"]} if piece.bend_h is not None else {})},
         "frame": "world frame of trajectory.tum",
         "h_of_column_0_m": 0.0,
         "columns": "column c is at h = h_of_column_0_m + c * metres_per_pixel_along, metres along the axis from "
@@ -70,7 +71,9 @@ def unrolled_image(pm: "PieceMap", px_m: float) -> tuple[np.ndarray, dict]:
         "rows": "row k is at phi = phi_of_row_0_rad + k * phi_per_row_rad (mod 2 pi): rows go anticlockwise looking "
                 "from start to end, so the image shows the wall as seen from inside the pipe",
         "phi_convention": "phi = 0 at 12 o'clock (axis.up across the axis), increasing clockwise looking from start "
-                          "to end; the wall point is start + h u + radius (cos(phi) e_up + sin(phi) (u x e_up))",
+                          "to end; the wall point is start + h u + b(h) + radius (cos(phi) e_up + sin(phi) "
+                          "(u x e_up)), b(h) the axis's offset across u: linear between axis.bend.offset at "
+                          "axis.bend.h, constant beyond its ends, zero without axis.bend",
         "unseen_value": UNSEEN,
         "seen_fraction": float(ok.mean()),
     }

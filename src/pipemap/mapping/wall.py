@@ -5,8 +5,10 @@ end); phi is the angle around the axis, 0 at 12 o'clock (the component of `up` p
 the axis) and increasing clockwise when looking along the axis from start to end. So, looking
 down a horizontal pipe with z up, phi = pi/2 is 3 o'clock, the wall on the right.
 
-A wall point is start + h u + r (cos(phi) e_up + sin(phi) e_cw) with u the unit axis, e_up the
-12 o'clock direction and e_cw = u x e_up (3 o'clock).
+A wall point is start + h u + b(h) + r (cos(phi) e_up + sin(phi) e_cw) with u the unit axis, e_up
+the 12 o'clock direction, e_cw = u x e_up (3 o'clock) and b(h) the bend: the axis's offset across
+u (a few millimetres where the run sags or kinks at a joint), linear between knots and constant
+beyond the end knots (`pipemap.geometry.bend`); zero for a straight piece.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipemap.errors import PipemapError
+from pipemap.geometry.bend import AxisKnots
 
 # A grid point counts as inside another piece (a tee's branch opening) when it lies deeper than
 # this inside that piece's solid cylinder, in units of the grid spacing: one spacing absorbs the
@@ -31,7 +34,8 @@ class WallPiece:
     name: e.g. "S1" or "T1-branch"; start, end: axis end points (h = 0 at start); radius: metres;
     up: a world direction whose component across the axis is 12 o'clock (phi = 0; phi grows
     clockwise looking from start to end); unroll: True for straight sections (they get an
-    unrolled image), False for short tee stubs.
+    unrolled image), False for short tee stubs. bend_h (K,) increasing, bend_offsets (K, 3): the
+    bend's knots (h) and the axis offsets there (world vectors across the axis); None: straight.
     """
 
     name: str
@@ -40,6 +44,8 @@ class WallPiece:
     radius: float
     up: np.ndarray
     unroll: bool = True
+    bend_h: np.ndarray | None = None
+    bend_offsets: np.ndarray | None = None
 
     def __post_init__(self):
         where = f"wall piece {self.name!r}"
@@ -64,6 +70,18 @@ class WallPiece:
             raise PipemapError("up is parallel to the axis: 12 o'clock is undefined", where)
         for key, v in vals.items():
             object.__setattr__(self, key, v)
+        if (self.bend_h is None) != (self.bend_offsets is None):
+            raise PipemapError("bend needs both h and offset", where)
+        if self.bend_h is not None:
+            try:
+                bh = np.asarray(self.bend_h, float).reshape(-1)
+                bo = np.asarray(self.bend_offsets, float).reshape(len(bh), 3)
+            except (TypeError, ValueError):
+                raise PipemapError("bend: h must be numbers and offset one [x, y, z] per h", where) from None
+            if len(bh) < 2 or not (np.all(np.isfinite(bh)) and np.all(np.isfinite(bo))) or np.any(np.diff(bh) <= 0):
+                raise PipemapError("bend: h must be at least two increasing finite numbers, offsets finite", where)
+            object.__setattr__(self, "bend_h", bh)
+            object.__setattr__(self, "bend_offsets", bo - np.outer(bo @ u, u))
         object.__setattr__(self, "radius", r)
         object.__setattr__(self, "unroll", bool(self.unroll))
 
@@ -90,9 +108,20 @@ class WallPiece:
         x, y = q @ e_up, q @ e_cw
         return h, np.mod(np.arctan2(y, x), 2 * np.pi), np.hypot(x, y)
 
+    def axis_offset(self, h) -> np.ndarray:
+        """The bend b(h) (..., 3) at h (...,): zero for a straight piece."""
+        h = np.asarray(h, float)
+        if self.bend_h is None:
+            return np.zeros(h.shape + (3,))
+        return AxisKnots(self.bend_h).at(self.bend_offsets, h)
+
     def to_dict(self) -> dict:
-        return {"name": self.name, "start": [float(v) for v in self.start], "end": [float(v) for v in self.end],
-                "radius": self.radius, "up": [float(v) for v in self.up], "unroll": self.unroll}
+        d = {"name": self.name, "start": [float(v) for v in self.start], "end": [float(v) for v in self.end],
+             "radius": self.radius, "up": [float(v) for v in self.up], "unroll": self.unroll}
+        if self.bend_h is not None:
+            d["bend"] = {"h": [round(float(v), 6) for v in self.bend_h],
+                         "offset": [[round(float(v), 7) for v in row] for row in self.bend_offsets]}
+        return d
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "wall piece") -> "WallPiece":
@@ -105,13 +134,17 @@ class WallPiece:
             radius = float(d["radius"])
         except (TypeError, ValueError):
             raise PipemapError(f"radius is not a number: {d['radius']!r}", where) from None
-        return cls(str(d["name"]), d["start"], d["end"], radius, d["up"], bool(d.get("unroll", True)))
+        bend = d.get("bend")
+        if bend is not None and not (isinstance(bend, dict) and "h" in bend and "offset" in bend):
+            raise PipemapError("bend must be {h: [...], offset: [[x, y, z], ...]}", where)
+        return cls(str(d["name"]), d["start"], d["end"], radius, d["up"], bool(d.get("unroll", True)),
+                   None if bend is None else bend["h"], None if bend is None else bend["offset"])
 
 
 @dataclass(frozen=True)
 class WallGrid:
     """A piece's wall sampled at h[i] (rows) and phi[j] (columns): h from 0 to length inclusive,
-    phi = j * 2 pi / W. Point (i, j) is start + h[i] u + r ring[j]."""
+    phi = j * 2 pi / W. Point (i, j) is start + h[i] u + b(h[i]) + r ring[j]."""
 
     piece: WallPiece
     h: np.ndarray  # (H,)
@@ -133,7 +166,8 @@ class WallGrid:
     def points(self, rows: slice | np.ndarray = slice(None)) -> np.ndarray:
         """World points (h rows, W, 3) of the grid rows `rows`."""
         p = self.piece
-        axis_pts = p.start + self.h[rows, None] * p.axis
+        h = self.h[rows]
+        axis_pts = p.start + h[:, None] * p.axis + p.axis_offset(h)
         return axis_pts[:, None, :] + p.radius * self.ring[None, :, :]
 
 

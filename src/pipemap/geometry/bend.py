@@ -1,0 +1,140 @@
+"""A pipe axis that bends a little: offsets of the axis from a straight line, at knots along it.
+
+Pipe runs are laid from pieces that sag between their supports and meet at slightly kinked
+joints: a few millimetres over a few metres. A straight cylinder fitted over such a run leaves
+its wall that far off, and in a window solve the cylinder term straightens the trajectory to
+match. The bent axis is the straight axis plus an offset o(z) across it, linear between knots
+z_0 < ... < z_{K-1} evenly spaced along the axis and constant beyond the end knots.
+
+Offsets are held near the straight line by a prior with two terms, both as residuals whose
+square is a cost in the units of a squared reprojection error (pixels^2):
+- each knot offset over `offset_sigma_m`: this only fixes the gauge (a linear trend of the
+  offsets is the same as a tilted or shifted straight axis) and is kept weak;
+- each kink, the change of slope at an inner knot (o_{k-1} - 2 o_k + o_{k+1}) / spacing, over
+  `kink_sigma_rad`: how sharply the pipe is expected to bend.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+# Weak: it only decides how a linear trend is split between the straight axis and the offsets.
+OFFSET_SIGMA_M = 0.01
+
+
+@dataclass(frozen=True)
+class AxisKnots:
+    """Evenly spaced knots z (K,) along an axis (K >= 2)."""
+
+    z: np.ndarray
+
+    def __post_init__(self):
+        z = np.asarray(self.z, float).reshape(-1)
+        if len(z) < 2 or not np.all(np.isfinite(z)) or not np.all(np.diff(z) > 0):
+            raise ValueError("knots must be at least two increasing finite numbers")
+        object.__setattr__(self, "z", z)
+
+    @classmethod
+    def spanning(cls, z_min: float, z_max: float, spacing: float) -> "AxisKnots":
+        """Knots from z_min to z_max at most `spacing` apart."""
+        if not (spacing > 0 and math.isfinite(spacing)):
+            raise ValueError(f"knot spacing must be positive, got {spacing!r}")
+        span = max(float(z_max) - float(z_min), 1e-9)
+        return cls(np.linspace(float(z_min), float(z_min) + span, max(2, math.ceil(span / spacing) + 1)))
+
+    def __len__(self) -> int:
+        return len(self.z)
+
+    @property
+    def spacing(self) -> float:
+        return float(self.z[1] - self.z[0])
+
+    def segment(self, z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For each z: the segment index i (offset = (1 - f) o_i + f o_{i+1}), the fraction f and
+        whether z lies between the end knots (beyond them the offset is constant, its slope 0)."""
+        z = np.asarray(z, float)
+        i = np.clip(np.searchsorted(self.z, z, side="right") - 1, 0, len(self.z) - 2)
+        f = (z - self.z[i]) / (self.z[i + 1] - self.z[i])
+        inside = (f >= 0.0) & (f <= 1.0)
+        return i, np.clip(f, 0.0, 1.0), inside
+
+    def at(self, offsets: np.ndarray, z) -> np.ndarray:
+        """Offsets (K, D) interpolated at z (...,): (..., D)."""
+        o = np.asarray(offsets, float)
+        i, f, _ = self.segment(z)
+        return (1.0 - f)[..., None] * o[i] + f[..., None] * o[i + 1]
+
+    def slope(self, offsets: np.ndarray, z) -> np.ndarray:
+        """d offset / dz at z (..., D); 0 beyond the end knots."""
+        o = np.asarray(offsets, float)
+        i, _, inside = self.segment(z)
+        return np.where(inside[..., None], (o[i + 1] - o[i]) / (self.z[i + 1] - self.z[i])[..., None], 0.0)
+
+    def prior(self, dims: int, kink_sigma_rad: float, offset_sigma_m: float = OFFSET_SIGMA_M) -> np.ndarray:
+        """The prior's constant Jacobian P: residuals P @ offsets.ravel() for offsets (K, dims)."""
+        K = len(self.z)
+        rows = [np.eye(K) / offset_sigma_m]
+        if K > 2:
+            D = np.zeros((K - 2, K))
+            k = np.arange(K - 2)
+            D[k, k], D[k, k + 1], D[k, k + 2] = 1.0, -2.0, 1.0
+            rows.append(D / (self.spacing * kink_sigma_rad))
+        return np.kron(np.vstack(rows), np.eye(dims))
+
+
+def bent_distance(xy: np.ndarray, z: np.ndarray, knots: AxisKnots | None, offsets: np.ndarray | None,
+                  radius: float):
+    """Signed wall distance of points given in an axis frame (axis = z) around the bent axis, and
+    its derivatives: d (M,), n (M, 3) = d d / d (x, y, z), and per point the two knots i, i+1 and
+    weights (1 - f, f) through which d d / d o = -weight * n_xy."""
+    xy = np.asarray(xy, float)
+    if knots is None:
+        o = np.zeros_like(xy)
+        slope = np.zeros_like(xy)
+        i = np.zeros(len(xy), np.int64)
+        f = np.zeros(len(xy))
+    else:
+        i, f, inside = knots.segment(z)
+        o = knots.at(offsets, z)
+        slope = np.where(inside[:, None], (offsets[i + 1] - offsets[i]) / (knots.z[i + 1] - knots.z[i])[:, None], 0.0)
+    v = xy - o
+    rho = np.hypot(v[:, 0], v[:, 1])
+    safe = np.where(rho > 0, rho, 1.0)
+    nxy = v / safe[:, None]
+    n = np.column_stack([nxy, -np.einsum("mi,mi->m", nxy, slope)])
+    return rho - radius, n, i, f
+
+
+def fit_bend(axial: np.ndarray, across: np.ndarray, radius: float, spacing: float, kink_sigma_rad: float,
+             huber: float, sigma_m: float, iterations: int = 5) -> tuple[AxisKnots, np.ndarray]:
+    """Knots and offsets (K, 2) of a bent axis fitted to wall points given by their coordinate
+    along a straight axis (M,) and their position across it (M, 2), the radius known. Point
+    distances count as residuals over `sigma_m` (Huber at `huber` metres), so the prior weighs
+    against them as in a window solve. Iteratively re-weighted linear least squares: the offsets
+    are millimetres, far below the radius, so d is linear in them to well under a micrometre."""
+    knots = AxisKnots.spanning(float(np.min(axial)), float(np.max(axial)), spacing)
+    K = len(knots)
+    P = knots.prior(2, kink_sigma_rad)
+    o = np.zeros((K, 2))
+    i, f, _ = knots.segment(axial)
+    for _ in range(iterations):
+        d, n, _, _ = bent_distance(across, axial, knots, o, radius)
+        w = np.where(np.abs(d) <= huber, 1.0, huber / np.maximum(np.abs(d), 1e-300)) / sigma_m**2
+        J = np.zeros((len(d), K, 2))
+        rows = np.arange(len(d))
+        J[rows, i] = -(1.0 - f)[:, None] * n[:, :2]
+        J[rows, i + 1] += -f[:, None] * n[:, :2]
+        J = J.reshape(len(d), 2 * K)
+        H = J.T @ (w[:, None] * J) + P.T @ P
+        g = J.T @ (w * d) + P.T @ (P @ o.ravel())
+        step = np.linalg.solve(H, -g)
+        o = o + step.reshape(K, 2)
+        if np.max(np.abs(step)) < 1e-7:
+            break
+    return knots, o
+
+
+__all__ = ["AxisKnots", "bent_distance", "fit_bend", "OFFSET_SIGMA_M"]
