@@ -178,7 +178,8 @@ class BundleProblem:
         if cyl0 is not None and bend_knot_m is not None and self.cylinder_points.any():
             Rt, tt = local_frame(cyl0)
             z = (world_to_camera(self.ref_R, self.ref_t, X[self.cylinder_points]) @ Rt.T + tt)[:, 2]
-            self.knots = AxisKnots.spanning(float(z.min()), float(z.max()), float(bend_knot_m))
+            pad = 0.01 * float(bend_knot_m)  # no point on an end knot, where the slope of the offset jumps to 0
+            self.knots = AxisKnots.spanning(float(z.min()) - pad, float(z.max()) + pad, float(bend_knot_m))
             P = self.knots.prior(2, np.radians(bend_kink_deg))
             self.bend_prior = np.hstack([np.zeros((len(P), 4)), P])
             cyl0 = np.concatenate([cyl0, np.zeros(2 * len(self.knots))])

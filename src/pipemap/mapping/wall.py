@@ -137,8 +137,11 @@ class WallPiece:
         bend = d.get("bend")
         if bend is not None and not (isinstance(bend, dict) and "h" in bend and "offset" in bend):
             raise PipemapError("bend must be {h: [...], offset: [[x, y, z], ...]}", where)
-        return cls(str(d["name"]), d["start"], d["end"], radius, d["up"], bool(d.get("unroll", True)),
-                   None if bend is None else bend["h"], None if bend is None else bend["offset"])
+        try:
+            return cls(str(d["name"]), d["start"], d["end"], radius, d["up"], bool(d.get("unroll", True)),
+                       None if bend is None else bend["h"], None if bend is None else bend["offset"])
+        except PipemapError as exc:
+            raise PipemapError(exc.message, where) from None
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipemap.camera import PolynomialCamera
-from pipemap.geometry.cylinder import Cylinder, rot_z
+from pipemap.geometry.cylinder import Cylinder, rot_x, rot_z
 from pipemap.geometry.rotations import exp_so3, look_rotation
 
 RADIUS = 0.2
@@ -36,8 +36,10 @@ def fisheye_640() -> PolynomialCamera:
 
 
 def make_pipe_window(n_frames=80, n_points=3000, step=0.01, noise_px=0.5, outlier_frac=0.05, scale0=0.9,
-                     seed=0, track=(3, 7)) -> PipeWindow:
-    """A straight pipe window with exact ground truth; see the module docstring."""
+                     seed=0, track=(3, 7), sag_m=0.0) -> PipeWindow:
+    """A straight pipe window with exact ground truth; see the module docstring. sag_m: the pipe
+    is instead two pieces that meet sag_m low (-y) half-way along the window, and the crawler
+    follows its floor (the true cylinder is then the straight line between the ends)."""
     rng = np.random.default_rng(seed)
     cam = fisheye_640()
     k = np.arange(n_frames)
@@ -45,6 +47,17 @@ def make_pipe_window(n_frames=80, n_points=3000, step=0.01, noise_px=0.5, outlie
     c = np.stack([0.02 + 0.02 * np.sin(2 * np.pi * k / 40), -0.05 + 0.01 * np.cos(2 * np.pi * k / 25), step * k], -1)
     fwd = np.stack([0.03 * np.sin(2 * np.pi * k / 30), 0.02 * np.cos(2 * np.pi * k / 45), np.ones(n_frames)], -1)
     R = look_rotation(fwd, np.array([0.0, -1.0, 0.0])) @ rot_z(0.05 * np.sin(2 * np.pi * k / 35))
+    length = step * (n_frames - 1)
+
+    def sag(z):  # the axis's offset along y, and its slope
+        half = length / 2
+        return (-sag_m * np.clip(np.where(z < half, z / half, (length - z) / half), 0.0, 1.0),
+                np.where((z > 0) & (z < length), np.where(z < half, -sag_m / half, sag_m / half), 0.0))
+
+    if sag_m:
+        off, slope = sag(c[:, 2])
+        c[:, 1] += off
+        R = rot_x(-np.arctan(slope)) @ R  # pitched with the piece it rides on
     # Then the whole scene goes to a general place in the world.
     G = exp_so3(np.array([0.3, -0.5, 0.2]))
     g = np.array([1.0, -2.0, 0.5])
@@ -52,7 +65,7 @@ def make_pipe_window(n_frames=80, n_points=3000, step=0.01, noise_px=0.5, outlie
     cyl = Cylinder(g, G @ np.array([0.0, 0.0, 1.0]), RADIUS)
     z = rng.uniform(-0.02, step * (n_frames - 1) + 0.3, n_points)
     phi = rng.uniform(-np.pi, np.pi, n_points)
-    X = np.stack([RADIUS * np.cos(phi), RADIUS * np.sin(phi), z], -1) @ G.T + g
+    X = np.stack([RADIUS * np.cos(phi), RADIUS * np.sin(phi) + sag(z)[0], z], -1) @ G.T + g
     Xc = np.einsum("nji,nmj->nmi", R, X[None] - t[:, None])
     uv, valid = cam.project(Xc)
     valid &= cam.colatitude(Xc) > np.radians(25)
