@@ -134,6 +134,23 @@ def test_candidates_pair_the_revisited_sections_only(route):
         assert l[-1] - l[0] > 0.9 and np.max(np.diff(l)) < 0.4
 
 
+def test_visits_that_reach_different_tees_pair_by_position_along_the_pipe():
+    """A loop that ends on the side it started on, short of the tee it first turned at: the first
+    visit's tee is at the pipe's far end (x = 1.5), the second visit's at its near end (x = 0).
+    Distances to those two tees do not name one place; positions along the axis do."""
+    x = np.array([1.0, 0.0, 0.0])
+    poses = np.stack([np.eye(4)] * 60)
+    poses[:30, :3, 3] = np.linspace(0.5, 1.3, 30)[:, None] * x  # first visit, towards the tee at 1.5
+    poses[30:, :3, 3] = np.linspace(0.2, 1.0, 30)[:, None] * x  # the last, from the tee at 0
+    sections = [StraightSection(0, 29, [0, 0, 0], x), StraightSection(30, 59, [0, 0.002, 0], x)]
+    junctions = [TeeJunction(np.array([1.5, 0, 0]), (0,)), TeeJunction(np.array([0.0, 0, 0]), (1,))]
+    cands = loop_candidates(sections, junctions, poses, RADIUS, LoopClosureSettings(candidates_per_section=5))
+    assert len(cands) == 5
+    P = poses[:, :3, 3]
+    for c in cands:
+        assert abs(P[c.j, 0] - P[c.i, 0]) < 0.03 and 0.5 <= P[c.i, 0] <= 1.0
+
+
 def test_same_pipe_needs_collinear_overlapping_axes():
     s = LoopClosureSettings()
     x = np.array([1.0, 0.0, 0.0])

@@ -109,16 +109,19 @@ def same_pipe(a: StraightSection, b: StraightSection, positions: np.ndarray, rad
     return float(lo), float(hi)
 
 
-def _end_tee(a: int, b: int, sections, junctions) -> tuple[np.ndarray, np.ndarray] | None:
-    """The centroids, one per visit, of the same tee at an end of pipe a / b (the pair closest along the axis)."""
+def _end_tee(a: int, b: int, sections, junctions, same_m: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The centroids, one per visit, of the same tee at an end of pipe a / b: the pair closest along
+    the axis, if they lie within `same_m` of each other along it. None when the visits share no tee
+    (one reached the tee at the pipe's one end, the other only the tee at its other end)."""
     axis = sections[a]
     ta = [j.centroid for j in junctions if a in j.sections]
     tb = [j.centroid for j in junctions if b in j.sections]
-    if not ta and not tb:
+    if not ta or not tb:
         return None
-    ta, tb = ta or tb, tb or ta
     best = min(((abs(float((ca - cb) @ axis.direction)), k, m) for k, ca in enumerate(ta) for m, cb in enumerate(tb)),
                key=lambda x: x[0])
+    if best[0] > same_m:
+        return None
     return np.asarray(ta[best[1]], float), np.asarray(tb[best[2]], float)
 
 
@@ -135,14 +138,14 @@ def loop_candidates(sections: list[StraightSection], junctions: list[TeeJunction
             overlap = same_pipe(sections[a], sections[b], positions, radius, s)
             if overlap is None:
                 continue
-            out += _pair_poses(a, b, sections, junctions, positions, overlap, s)
+            out += _pair_poses(a, b, sections, junctions, positions, overlap, s, radius)
     return out
 
 
-def _pair_poses(a, b, sections, junctions, positions, overlap, s) -> list[LoopCandidate]:
+def _pair_poses(a, b, sections, junctions, positions, overlap, s, radius) -> list[LoopCandidate]:
     sa, sb = sections[a], sections[b]
     ka, kb = np.arange(sa.first, sa.last + 1), np.arange(sb.first, sb.last + 1)
-    tees = _end_tee(a, b, sections, junctions)
+    tees = _end_tee(a, b, sections, junctions, s.same_junction_radii * radius)
     if tees is None:
         # No tee to measure from: positions along the axis, in the drifted map, and only where they overlap.
         la, lb = (positions[ka] - sa.origin) @ sa.direction, (positions[kb] - sa.origin) @ sa.direction
