@@ -101,6 +101,11 @@ class BundleSettings(_Section):
     bend_knot_m: float | None = Field(0.25, gt=0, description="knot spacing of the window cylinder's bent axis (pipe "
                                       "runs sag and kink at joints by millimetres); None: a straight cylinder")
     bend_kink_deg: float = Field(0.5, gt=0, description="prior sigma of the axis's change of direction at a knot")
+    bend_offset_mm: float = Field(2.0, gt=0, description="prior sigma of the axis's sideways offset from the straight "
+                                  "line at a knot: joints shift a pipe's wall by millimetres, and a looser bend lets "
+                                  "the heading drift (paper-loop route A: 0.4 deg per side at 10 mm, 0.2 at 2 mm)")
+    bend_sag_mm: float = Field(10.0, gt=0, description="... and its vertical offset (down the camera's image, which "
+                               "stays level on a crawler): pipes sag between their supports")
     tee_fit_length_m: float = Field(1.0, gt=0, description="length of straight pipe fitted each side of a tee")
     tee_model: bool = Field(True, description="join the straight sections through each tee with the two-cylinder "
                             "model SBA (III-D); off: the VO's chaining and the end cylinders' meeting point")

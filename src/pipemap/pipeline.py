@@ -36,6 +36,7 @@ from pipemap.frontend import FeatureTracker
 from pipemap.frontend.classification import SequenceClass, SequenceClassifier
 from pipemap.frontend.tracks import Keyframe
 from pipemap.frontend.tracks_io import write_frames_csv
+from pipemap.geometry.bend import OFFSET_SIGMA_M
 from pipemap.mapping import WallPiece, write_maps
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.trajectory import Trajectory, write_tum
@@ -133,13 +134,15 @@ def keyframe_labels(keyframes: list[Keyframe], classes: SequenceClass) -> np.nda
     return np.array([bool(lookup.get(kf.index, False)) for kf in keyframes], bool)
 
 
-def section_bend(settings: Settings) -> tuple[float, float, float] | None:
-    """(knot spacing, kink sigma rad, point sigma m) of the sections' bent axes, as the window solves
-    weigh them (a point's distance counts 1 / sqrt(tau) metres per unit); None: straight."""
+def section_bend(settings: Settings) -> tuple[float, float, float, float] | None:
+    """(knot spacing, kink sigma rad, point sigma m, offset sigma m) of the sections' bent axes, weighed
+    as the window solves weigh them (a point's distance counts 1 / sqrt(tau) metres per unit). The
+    offsets get only the gauge's weak hold: the window solves decided how far the points bend, and
+    a fit to the finished points need not fear heading drift. None: straight."""
     b = settings.bundle
     if b.bend_knot_m is None or b.tau <= 0:
         return None
-    return b.bend_knot_m, float(np.radians(b.bend_kink_deg)), float(1.0 / np.sqrt(b.tau))
+    return b.bend_knot_m, float(np.radians(b.bend_kink_deg)), float(1.0 / np.sqrt(b.tau)), OFFSET_SIGMA_M
 
 
 def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> NetworkResult:

@@ -92,7 +92,7 @@ def test_a_sagging_section_gets_a_bent_axis_and_its_wall_piece_follows_the_wall(
     poses, points, tids, kfs = _l_shaped_run(np.random.default_rng(2), sag_m=0.002)
     sections = [SectionReport(0, 0, 89, "cylinder"), SectionReport(1, 90, 99, "cylinder", kind="junction", linked=True),
                 SectionReport(2, 100, len(poses) - 1, "cylinder", linked=True)]
-    mapped = map_sections(sections, kfs, poses, points, tids, R, bend=(0.25, np.radians(0.5), 0.002))
+    mapped = map_sections(sections, kfs, poses, points, tids, R, bend=(0.25, np.radians(0.5), 0.002, 0.01))
     junctions = map_junctions(sections, mapped, poses)
     (d,) = [p for p in wall_pieces(mapped, junctions, [0, 0, 1.0]) if p["name"] == "S0"]
     bent = WallPiece.from_dict(d)

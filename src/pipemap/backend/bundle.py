@@ -151,7 +151,8 @@ class BundleProblem:
                  cylinder_points: np.ndarray | None = None, tau: float = 2.5e5, huber_px: float = 1.0,
                  huber_m: float = 0.005, mad_k: float = 3.0, outlier_passes: int = 3, max_iterations: int = 20,
                  fixed_distance: tuple[int, int] | None = None, distance_weight: float = 1e6,
-                 bend_knot_m: float | None = None, bend_kink_deg: float = 0.5):
+                 bend_knot_m: float | None = None, bend_kink_deg: float = 0.5,
+                 bend_offset_mm: float = 2.0, bend_sag_mm: float = 10.0):
         self.camera = camera
         R, t, X, obs = problem_inputs(poses, points, observations)
         N, M = len(R), len(X)
@@ -180,7 +181,8 @@ class BundleProblem:
             z = (world_to_camera(self.ref_R, self.ref_t, X[self.cylinder_points]) @ Rt.T + tt)[:, 2]
             pad = 0.01 * float(bend_knot_m)  # no point on an end knot, where the slope of the offset jumps to 0
             self.knots = AxisKnots.spanning(float(z.min()) - pad, float(z.max()) + pad, float(bend_knot_m))
-            P = self.knots.prior(2, np.radians(bend_kink_deg))
+            # Cylinder frame x ~ the reference camera's x (across, level), y ~ its y (down, for a crawler).
+            P = self.knots.prior(2, np.radians(bend_kink_deg), 1e-3 * np.array([bend_offset_mm, bend_sag_mm]))
             self.bend_prior = np.hstack([np.zeros((len(P), 4)), P])
             cyl0 = np.concatenate([cyl0, np.zeros(2 * len(self.knots))])
         self.initial = BundleState(R, t, X, cyl0)
@@ -191,7 +193,8 @@ class BundleProblem:
         b = getattr(settings, "bundle", settings)
         opts = dict(tau=b.tau, huber_px=b.huber_px, huber_m=b.huber_m, mad_k=b.mad_k,
                     outlier_passes=b.outlier_passes, max_iterations=b.max_iterations,
-                    bend_knot_m=b.bend_knot_m, bend_kink_deg=b.bend_kink_deg)
+                    bend_knot_m=b.bend_knot_m, bend_kink_deg=b.bend_kink_deg, bend_offset_mm=b.bend_offset_mm,
+                    bend_sag_mm=b.bend_sag_mm)
         opts.update(kwargs)
         return cls(camera, poses, points, observations, **opts)
 

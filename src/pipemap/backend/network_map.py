@@ -89,7 +89,7 @@ def _fit(points: np.ndarray, centres: np.ndarray, R_ref, c_ref, radius: float, h
 
 
 def _fit_bend(cyl: Cylinder, points: np.ndarray, huber: float, knot_m: float, kink_rad: float,
-              sigma_m: float) -> tuple[np.ndarray, np.ndarray] | None:
+              sigma_m: float, offset_sigma_m: float) -> tuple[np.ndarray, np.ndarray] | None:
     near = np.abs(cyl.distance(points)) < 4 * huber  # wall points, not the fit's outliers
     if near.sum() < 20:
         return None
@@ -97,7 +97,8 @@ def _fit_bend(cyl: Cylinder, points: np.ndarray, huber: float, knot_m: float, ki
     e2 = np.cross(cyl.direction, e1)
     v = points[near] - cyl.origin
     h = v @ cyl.direction
-    knots, o = fit_bend(h, np.column_stack([v @ e1, v @ e2]), cyl.radius, knot_m, kink_rad, huber, sigma_m)
+    knots, o = fit_bend(h, np.column_stack([v @ e1, v @ e2]), cyl.radius, knot_m, kink_rad, huber, sigma_m,
+                        offset_sigma_m)
     return knots.z, np.outer(o[:, 0], e1) + np.outer(o[:, 1], e2)
 
 
@@ -113,9 +114,9 @@ def _near_path(points: np.ndarray, centres: np.ndarray, margin: float) -> np.nda
 
 def map_sections(sections, keyframes: list[Keyframe], poses: np.ndarray, points: np.ndarray, tids: np.ndarray,
                  radius: float, length_m: float = 1.0, huber_m: float = 0.005,
-                 bend: tuple[float, float, float] | None = None) -> list[MappedSection]:
+                 bend: tuple[float, float, float, float] | None = None) -> list[MappedSection]:
     """Cylinders of every straight section (see the module docstring). `sections`: the VO's SectionReports.
-    bend = (knot spacing m, kink sigma rad, point sigma m): also fit each whole-section cylinder's
+    bend = (knot spacing m, kink sigma rad, point sigma m, offset sigma m): also fit each whole-section cylinder's
     bent axis (`pipemap.geometry.bend.fit_bend`)."""
     order = np.argsort(tids)
     tids_sorted, points_sorted = tids[order], points[order]

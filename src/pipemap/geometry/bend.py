@@ -8,8 +8,10 @@ z_0 < ... < z_{K-1} evenly spaced along the axis and constant beyond the end kno
 
 Offsets are held near the straight line by a prior with two terms, both as residuals whose
 square is a cost in the units of a squared reprojection error (pixels^2):
-- each knot offset over `offset_sigma_m`: this only fixes the gauge (a linear trend of the
-  offsets is the same as a tilted or shifted straight axis) and is kept weak;
+- each knot offset over `offset_sigma_m`. At the least this fixes the gauge (a linear trend of
+  the offsets is the same as a tilted or shifted straight axis). In a window solve it also
+  does what the straight cylinder did: an axis free to curve lets the heading drift with it,
+  the very drift the cylinder is there to stop, so there it is held to millimetres;
 - each kink, the change of slope at an inner knot (o_{k-1} - 2 o_k + o_{k+1}) / spacing, over
   `kink_sigma_rad`: how sharply the pipe is expected to bend.
 """
@@ -21,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# Weak: it only decides how a linear trend is split between the straight axis and the offsets.
+# Weak: only decides how a linear trend is split between the straight axis and the offsets.
 OFFSET_SIGMA_M = 0.01
 
 
@@ -73,16 +75,18 @@ class AxisKnots:
         i, _, inside = self.segment(z)
         return np.where(inside[..., None], (o[i + 1] - o[i]) / (self.z[i + 1] - self.z[i])[..., None], 0.0)
 
-    def prior(self, dims: int, kink_sigma_rad: float, offset_sigma_m: float = OFFSET_SIGMA_M) -> np.ndarray:
-        """The prior's constant Jacobian P: residuals P @ offsets.ravel() for offsets (K, dims)."""
+    def prior(self, dims: int, kink_sigma_rad: float, offset_sigma_m=OFFSET_SIGMA_M) -> np.ndarray:
+        """The prior's constant Jacobian P: residuals P @ offsets.ravel() for offsets (K, dims);
+        offset_sigma_m is one sigma or one per dimension."""
         K = len(self.z)
-        rows = [np.eye(K) / offset_sigma_m]
+        sigma = np.broadcast_to(np.asarray(offset_sigma_m, float), (dims,))
+        rows = [np.kron(np.eye(K), np.diag(1.0 / sigma))]
         if K > 2:
             D = np.zeros((K - 2, K))
             k = np.arange(K - 2)
             D[k, k], D[k, k + 1], D[k, k + 2] = 1.0, -2.0, 1.0
-            rows.append(D / (self.spacing * kink_sigma_rad))
-        return np.kron(np.vstack(rows), np.eye(dims))
+            rows.append(np.kron(D / (self.spacing * kink_sigma_rad), np.eye(dims)))
+        return np.vstack(rows)
 
 
 def bent_distance(xy: np.ndarray, z: np.ndarray, knots: AxisKnots | None, offsets: np.ndarray | None,
@@ -109,7 +113,8 @@ def bent_distance(xy: np.ndarray, z: np.ndarray, knots: AxisKnots | None, offset
 
 
 def fit_bend(axial: np.ndarray, across: np.ndarray, radius: float, spacing: float, kink_sigma_rad: float,
-             huber: float, sigma_m: float, iterations: int = 5) -> tuple[AxisKnots, np.ndarray]:
+             huber: float, sigma_m: float, offset_sigma_m: float = OFFSET_SIGMA_M,
+             iterations: int = 5) -> tuple[AxisKnots, np.ndarray]:
     """Knots and offsets (K, 2) of a bent axis fitted to wall points given by their coordinate
     along a straight axis (M,) and their position across it (M, 2), the radius known. Point
     distances count as residuals over `sigma_m` (Huber at `huber` metres), so the prior weighs
@@ -117,7 +122,7 @@ def fit_bend(axial: np.ndarray, across: np.ndarray, radius: float, spacing: floa
     are millimetres, far below the radius, so d is linear in them to well under a micrometre."""
     knots = AxisKnots.spanning(float(np.min(axial)), float(np.max(axial)), spacing)
     K = len(knots)
-    P = knots.prior(2, kink_sigma_rad)
+    P = knots.prior(2, kink_sigma_rad, offset_sigma_m)
     o = np.zeros((K, 2))
     i, f, _ = knots.segment(axial)
     for _ in range(iterations):

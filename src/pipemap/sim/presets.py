@@ -11,7 +11,8 @@ for, simulate() keeps the first N frames of the route at the same spacing.
   looking up at the wall with image x along the pipe (report section 5.3), 4 LEDs; routes
   "forward" and "forward-reverse" with the report's frame counts.
 - fisheye-straight: one straight 400 mm pipe seen by the fisheye.
-- demo-loop: a small 2 m x 1.5 m tee loop at 640x480, fast.
+- demo-loop: a small 2 m x 1.5 m tee loop at 640x480, fast; route "A" drives the lap and on
+  past its start along the first side, so the run revisits it (loop closure).
 - white-card: the 2010 report's gain-mask images: a white pipe wall, LEDs on, camera still.
 """
 
@@ -154,8 +155,8 @@ def table_i_corners() -> np.ndarray:
 
 def _loop_setup(name, corners, width, height, route, seed, *, fisheye_scale_w=None, stub=0.6, piece=2.75,
                 sag=0.004, misalign=0.002, start_back=1.5, end_before=1.5) -> Setup:
-    """A tee loop. Route A: start on side T4-T1, turn at T1, T2, T3, T4, end on side T4-T1 short
-    of the start. Route B: start on side T1-T4 heading to T4, turn at T4, T3, T2, T1, T4, end on
+    """A tee loop. Route A: start on side T4-T1, turn at T1, T2, T3, T4, end on side T4-T1
+    `end_before` metres short of the start (past it when negative). Route B: start on side T1-T4 heading to T4, turn at T4, T3, T2, T1, T4, end on
     side T4-T3."""
     scene = tee_loop_scene(corners, 0.2, stub_length=stub, piece_length=piece, sag_m=sag, misalign_m=misalign, seed=seed)
     n = len(corners)
@@ -179,10 +180,15 @@ def _paper_loop(width, height, route, seed):
     return _loop_setup("paper-loop", table_i_corners(), width, height, route, seed)
 
 
+# Route A starts 0.75 m short of T1 and ends 0.45 m short of it, a lap later: 0.3 m of the first side
+# is driven twice (loop closure needs 0.2 m), and neither end is within 2 radii of a tee.
+_DEMO_ENDS = {"A": dict(start_back=0.75, end_before=-0.3), "B": dict(start_back=0.6, end_before=0.4)}
+
+
 def _demo_loop(width, height, route, seed):
     corners = np.array([[0, 0, 0], [2.0, 0, 0], [2.0, 1.5, 0], [0, 1.5, 0]], float)
     s = _loop_setup("demo-loop", corners, width, height, route, seed, fisheye_scale_w=(640, 480), stub=0.4,
-                    piece=1.0, sag=0.002, misalign=0.001, start_back=0.6, end_before=0.4)
+                    piece=1.0, sag=0.002, misalign=0.001, **_DEMO_ENDS[route])
     return s
 
 
