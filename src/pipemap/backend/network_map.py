@@ -2,7 +2,7 @@
 
 After the VO, each straight section gets cylinders of the pipe radius fitted to its scene points
 (fisheye paper III-D): one to the whole section (its axis, for the unrolled wall image and the
-appearance map) and one to each of its ends, the points around the first / last `length_m` of
+appearance map, bent where the run sags: `pipemap.geometry.bend`) and one to each of its ends, the points around the first / last `length_m` of
 camera path, relative to the first / last pose. A junction section (frames classified as a
 T-intersection) lies between two straight sections; its centre I is where the end cylinder
 before it and the start cylinder after it meet (the two-cylinder model's intersection point, the
@@ -19,7 +19,7 @@ import numpy as np
 
 from pipemap.frontend.tracks import Keyframe
 from pipemap.geometry.bend import fit_bend
-from pipemap.geometry.cylinder import Cylinder, _axis_frame, fit_cylinder
+from pipemap.geometry.cylinder import Cylinder, axis_frame, fit_cylinder
 
 STRAIGHT_THROUGH_DEG = 20.0  # axes closer to parallel than this cannot place a tee centre
 
@@ -93,7 +93,7 @@ def _fit_bend(cyl: Cylinder, points: np.ndarray, huber: float, knot_m: float, ki
     near = np.abs(cyl.distance(points)) < 4 * huber  # wall points, not the fit's outliers
     if near.sum() < 20:
         return None
-    e1 = _axis_frame(cyl.direction)[:, 0]
+    e1 = axis_frame(cyl.direction)[:, 0]
     e2 = np.cross(cyl.direction, e1)
     v = points[near] - cyl.origin
     h = v @ cyl.direction

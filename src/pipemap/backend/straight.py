@@ -9,8 +9,9 @@ For each new keyframe:
      Gauss-Newton on bearings, `triangulate`), kept when in front of every ray, with enough parallax
      and consistent with every bearing.
 Windows: once a section has `first_window` keyframes, and then every `bundle.step` keyframes, a
-sliding-window SBA (`BundleProblem`) runs over its last `bundle.window` keyframes with a straight
-cylinder of the a-priori radius fitted to the window's points (eq. 2-6). Gauge: every pose older
+sliding-window SBA (`BundleProblem`) runs over its last `bundle.window` keyframes with a cylinder
+of the a-priori radius fitted to the window's points (eq. 2-6), its axis allowed the small bend of
+a sagging run (`bundle.bend_knot_m`, `pipemap.geometry.bend`). Gauge: every pose older
 than the window and every pose of the window already solved by a previous window is held
 (`fixed_overlap` limits that to the oldest few), so consecutive windows chain; the first window
 holds its first pose. A section's last keyframes get a final (partial) window when it ends.

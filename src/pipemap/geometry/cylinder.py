@@ -237,7 +237,7 @@ class CylinderFit:
     iterations: int
 
 
-def _axis_frame(direction: np.ndarray) -> np.ndarray:
+def axis_frame(direction: np.ndarray) -> np.ndarray:
     """A rotation whose z axis is `direction`."""
     hint = _EY if abs(direction @ _EY) < 0.9 else _EX
     return look_rotation(direction, hint)
@@ -293,7 +293,7 @@ def fit_cylinder(points, radius: float, *, reference=None, direction=None, huber
         direction = np.linalg.eigh(cov)[1][:, -1]
     d0 = np.asarray(direction, float) / np.linalg.norm(direction)
     if reference is None:
-        ref_R, ref_t = _axis_frame(d0), centroid
+        ref_R, ref_t = axis_frame(d0), centroid
     elif isinstance(reference, (tuple, list)):
         ref_R, ref_t = (np.asarray(x, float) for x in reference)
     else:
@@ -332,5 +332,5 @@ def fit_cylinder(points, radius: float, *, reference=None, direction=None, huber
     return CylinderFit(cyl, p, (ref_R, ref_t), inliers, float(np.sqrt(np.mean(d**2))), abs(r_free), it_total)
 
 
-__all__ = ["Cylinder", "CylinderFit", "fit_cylinder", "local_frame", "local_distance", "distance_jacobians",
+__all__ = ["Cylinder", "CylinderFit", "axis_frame", "fit_cylinder", "local_frame", "local_distance", "distance_jacobians",
            "rot_x", "rot_y", "rot_z"]
