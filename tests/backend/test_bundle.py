@@ -90,10 +90,11 @@ def test_schur_step_equals_the_dense_damped_normal_equations(bend_knot_m):
     H[6 * C:6 * C + q, 6 * C:6 * C + q] = eq.Ux
     g[6 * C:6 * C + q] = eq.gx
     p0 = 6 * C + q
+    Wx = eq.global_point_coupling()
     for m in range(M):
         H[p0 + 3 * m:p0 + 3 * m + 3, p0 + 3 * m:p0 + 3 * m + 3] = eq.V[m]
         g[p0 + 3 * m:p0 + 3 * m + 3] = eq.gp[m]
-        H[6 * C:6 * C + q, p0 + 3 * m:p0 + 3 * m + 3] = eq.Wx[m]
+        H[6 * C:6 * C + q, p0 + 3 * m:p0 + 3 * m + 3] = Wx[m]
     for k in range(len(eq.obs_cam)):
         c, m = eq.obs_cam[k], eq.obs_pt[k]
         H[6 * c:6 * c + 6, p0 + 3 * m:p0 + 3 * m + 3] += eq.W[k]

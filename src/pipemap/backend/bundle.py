@@ -272,23 +272,25 @@ class BundleProblem:
         W = np.swapaxes(wJc, 1, 2) @ Jp[on]
         C = st.schur.C
         q = len(state.cylinder) if self.uses_cylinder else 0
-        Ux, gx, Wx = np.zeros((q, q)), np.zeros(q), np.zeros((self.M, q, 3))
+        Ux, gx, Wx_rank1 = np.zeros((q, q)), np.zeros(q), (np.zeros((self.M, q)), np.zeros((self.M, 3)))
         active = st.active
         if q:
             on_cyl = active & self.cylinder_points
             wd = np.where(on_cyl, self.tau * huber_weights(np.abs(lin.dist), self.huber_m), 0.0)
             V += np.einsum("m,mi,mj->mij", wd, lin.Jd_point, lin.Jd_point)
             gp += (wd * lin.dist)[:, None] * lin.Jd_point
-            Ux = np.einsum("m,mi,mj->ij", wd, lin.Jd_cyl, lin.Jd_cyl)
+            wJd = wd[:, None] * lin.Jd_cyl
+            Ux = wJd.T @ lin.Jd_cyl
             gx = lin.Jd_cyl.T @ (wd * lin.dist)
-            Wx = np.einsum("m,mi,mj->mij", wd, lin.Jd_cyl, lin.Jd_point)
+            Wx_rank1 = (wJd, lin.Jd_point)
             if self.bend_prior is not None:
                 Ux += self.bend_prior.T @ self.bend_prior
                 gx += self.bend_prior.T @ (self.bend_prior @ state.cylinder)
         # Points without inlier observations are frozen: an identity block with no gradient.
         V[~active] = np.eye(3)
         gp[~active] = 0.0
-        eq = NormalEquations(U, gc, V, gp, W, st.schur.obs_cam, st.schur.obs_pt, Ux, gx, Wx)
+        eq = NormalEquations(U, gc, V, gp, W, st.schur.obs_cam, st.schur.obs_pt, Ux, gx, None,
+                             Wx_rank1=Wx_rank1)
         if self.fixed_distance is not None:
             r, Ji, Jj = self._distance_prior(state)
             J = np.zeros(6 * C + q)

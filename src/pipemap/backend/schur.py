@@ -86,9 +86,20 @@ class NormalEquations:
     obs_pt: np.ndarray  # (Kf,) point index
     Ux: np.ndarray  # (q, q) global block (q = 0 without one)
     gx: np.ndarray  # (q,)
-    Wx: np.ndarray  # (M, q, 3) global-point coupling
+    Wx: np.ndarray | None  # (M, q, 3) global-point coupling, or None with Wx_rank1
     H_extra: np.ndarray | None = None  # (6C + q, 6C + q) added to the reduced system (priors)
     g_extra: np.ndarray | None = None  # (6C + q,)
+    # Wx[m] = outer(A[m], P[m]) given as (A (M, q), P (M, 3)): one scalar residual per point (a wall
+    # distance) couples it to the global block. The solve then never forms (M, q, 3) arrays, which
+    # with a bent cylinder's dozens of parameters cost more than the rest of the step.
+    Wx_rank1: tuple[np.ndarray, np.ndarray] | None = None
+
+    def global_point_coupling(self) -> np.ndarray:
+        """Wx (M, q, 3), formed from its factors when given as Wx_rank1."""
+        if self.Wx_rank1 is None:
+            return self.Wx
+        A, P = self.Wx_rank1
+        return A[:, :, None] * P[:, None, :]
 
 
 def solve_damped(eq: NormalEquations, structure: SchurStructure, lam: float):
@@ -119,7 +130,17 @@ def solve_damped(eq: NormalEquations, structure: SchurStructure, lam: float):
     rhs = np.zeros(n)
     if C:
         rhs[: 6 * C] = (-eq.gc + st.to_cam(np.einsum("kij,kj->ki", Y, eq.gp[eq.obs_pt]))).ravel()
-    if q:
+    if q and eq.Wx_rank1 is not None:
+        A, P = eq.Wx_rank1
+        r = np.einsum("mij,mj->mi", Vinv, P)  # V^-1 P (V is symmetric)
+        S[6 * C:, 6 * C:] = eq.Ux + lam * np.diag(np.diag(eq.Ux)) - (A * np.einsum("mi,mi->m", r, P)[:, None]).T @ A
+        if C:
+            a = np.einsum("kij,kj->ki", Y, P[eq.obs_pt])
+            cx = st.to_cam(a[:, :, None] * A[eq.obs_pt][:, None, :]).reshape(6 * C, q)
+            S[: 6 * C, 6 * C:] = -cx
+            S[6 * C:, : 6 * C] = -cx.T
+        rhs[6 * C:] = -eq.gx + A.T @ np.einsum("mi,mi->m", r, eq.gp)
+    elif q:
         Yx = eq.Wx @ Vinv  # (M, q, 3)
         S[6 * C:, 6 * C:] = eq.Ux + lam * np.diag(np.diag(eq.Ux)) - np.einsum("mij,mkj->ik", Yx, eq.Wx)
         if C:
@@ -139,7 +160,9 @@ def solve_damped(eq: NormalEquations, structure: SchurStructure, lam: float):
     back = -eq.gp
     if C:
         back = back - st.to_point(np.einsum("kji,kj->ki", eq.W, dc[eq.obs_cam]))
-    if q:
+    if q and eq.Wx_rank1 is not None:
+        back = back - eq.Wx_rank1[1] * (eq.Wx_rank1[0] @ dx)[:, None]
+    elif q:
         back = back - np.einsum("mji,j->mi", eq.Wx, dx)
     dp = np.einsum("mij,mj->mi", Vinv, back)
     return dc, dx, dp
