@@ -10,16 +10,9 @@ from pipemap.geometry.cylinder import distance_jacobians, local_distance
 from pipemap.geometry.rotations import exp_so3
 from pipemap.geometry.se3 import retract
 
+from derivatives import numerical
+
 RADIUS = 0.2
-
-
-def numerical(f, x, eps=1e-6):
-    cols = []
-    for i in range(x.size):
-        e = np.zeros_like(x)
-        e.flat[i] = eps
-        cols.append((f(x + e) - f(x - e)) / (2 * eps))
-    return np.stack(cols, -1)
 
 
 def test_knots_interpolate_linearly_and_hold_the_end_values_beyond():

@@ -11,22 +11,14 @@ from pipemap.geometry.cylinder import Cylinder, distance_jacobians, fit_cylinder
 from pipemap.geometry.rotations import exp_so3, look_rotation
 from pipemap.geometry.se3 import retract
 
+from derivatives import numerical
+
 RADIUS = 0.2
 
 
 def reference(seed=0):
     rng = np.random.default_rng(seed)
     return exp_so3(rng.normal(0, 0.4, 3)), rng.normal(0, 1.0, 3)
-
-
-def numerical(f, x, eps=1e-6):
-    """Central differences of f (returning (M,)) with respect to each entry of x."""
-    cols = []
-    for i in range(x.size):
-        e = np.zeros_like(x)
-        e.flat[i] = eps
-        cols.append((f(x + e) - f(x - e)) / (2 * eps))
-    return np.stack(cols, -1)
 
 
 def test_parameterisation_follows_eq_4_5():
