@@ -65,15 +65,17 @@ class AxisKnots:
 
     def at(self, offsets: np.ndarray, z) -> np.ndarray:
         """Offsets (K, D) interpolated at z (...,): (..., D)."""
-        o = np.asarray(offsets, float)
-        i, f, _ = self.segment(z)
-        return (1.0 - f)[..., None] * o[i] + f[..., None] * o[i + 1]
+        return self._offset_and_slope(offsets, *self.segment(z))[0]
 
     def slope(self, offsets: np.ndarray, z) -> np.ndarray:
         """d offset / dz at z (..., D); 0 beyond the end knots."""
+        return self._offset_and_slope(offsets, *self.segment(z))[1]
+
+    def _offset_and_slope(self, offsets, i, f, inside) -> tuple[np.ndarray, np.ndarray]:
         o = np.asarray(offsets, float)
-        i, _, inside = self.segment(z)
-        return np.where(inside[..., None], (o[i + 1] - o[i]) / (self.z[i + 1] - self.z[i])[..., None], 0.0)
+        value = (1.0 - f)[..., None] * o[i] + f[..., None] * o[i + 1]
+        slope = np.where(inside[..., None], (o[i + 1] - o[i]) / (self.z[i + 1] - self.z[i])[..., None], 0.0)
+        return value, slope
 
     def prior(self, dims: int, kink_sigma_rad: float, offset_sigma_m=OFFSET_SIGMA_M) -> np.ndarray:
         """The prior's constant Jacobian P: residuals P @ offsets.ravel() for offsets (K, dims);
@@ -102,8 +104,7 @@ def bent_distance(xy: np.ndarray, z: np.ndarray, knots: AxisKnots | None, offset
         f = np.zeros(len(xy))
     else:
         i, f, inside = knots.segment(z)
-        o = knots.at(offsets, z)
-        slope = np.where(inside[:, None], (offsets[i + 1] - offsets[i]) / (knots.z[i + 1] - knots.z[i])[:, None], 0.0)
+        o, slope = knots._offset_and_slope(offsets, i, f, inside)
     v = xy - o
     rho = np.hypot(v[:, 0], v[:, 1])
     safe = np.where(rho > 0, rho, 1.0)
