@@ -134,6 +134,8 @@ def join_sections(result: StraightResult, keyframes: list[Keyframe], sections: l
         for m in sections:
             if m.first > r_pose:
                 m.cylinder, m.start, m.end = (_move_cylinder(T, c) for c in (m.cylinder, m.start, m.end))
+                if m.bend is not None:  # knots are axial coordinates and move with the axis; offsets are world vectors
+                    m.bend = (m.bend[0], m.bend[1] @ T[:3, :3].T)
                 if m.cylinder is not None:
                     h = m.cylinder.axial(poses[[m.first, m.last], :3, 3])
                     m.start_h, m.end_h = float(h[0]), float(h[1])
