@@ -106,9 +106,9 @@ class BundleSettings(_Section):
                                   "the heading drift (paper-loop route A: 0.4 deg per side at 10 mm, 0.2 at 2 mm)")
     bend_sag_mm: float = Field(10.0, gt=0, description="... and its vertical offset (down the camera's image, which "
                                "stays level on a crawler): pipes sag between their supports")
-    tee_fit_length_m: float = Field(0.5, gt=0, description="length of pipe fitted with a straight end "
-                                      "cylinder each side of a tee (the paper: 1 m); shorter than a pipe piece, so "
-                                      "that the kinked joint beyond the piece next to the tee stays out of the fit")
+    tee_fit_length_m: float = Field(1.0, gt=0, description="length of pipe fitted with a straight end cylinder "
+                                    "each side of a tee (the paper's 1 m); half of it where the two fits' directions "
+                                    "differ beyond their noise, as when a joint beyond the piece next to the tee kinks")
     tee_model: bool = Field(True, description="join the straight sections through each tee with the two-cylinder "
                             "model SBA (III-D); off: the VO's chaining and the end cylinders' meeting point")
 

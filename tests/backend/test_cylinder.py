@@ -142,6 +142,22 @@ def test_fit_recovers_a_known_cylinder_from_noisy_points(init):
     assert np.allclose(fit.cylinder.local_params(*fit.reference), fit.params, atol=1e-9)
 
 
+def test_fit_covariance_matches_the_scatter_of_repeated_fits():
+    """rms^2 (J^T J)^-1 against the spread of the parameters over 40 noise draws (1 mm, no outliers)."""
+    true = Cylinder([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], RADIUS)
+    reference = (np.eye(3), np.zeros(3))
+    params, sds = [], []
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        phi, z = rng.uniform(0, 2 * np.pi, 400), rng.uniform(0.0, 0.5, 400)
+        X = np.column_stack([RADIUS * np.cos(phi), RADIUS * np.sin(phi), z]) + rng.normal(0, 0.001, (400, 3))
+        fit = fit_cylinder(X, RADIUS, reference=reference, direction=[0, 0, 1.0])
+        params.append(fit.params)
+        sds.append(np.sqrt(np.diag(fit.covariance)))
+    ratio = np.std(params, axis=0) / np.mean(sds, axis=0)
+    assert np.all((ratio > 0.7) & (ratio < 1.4)), ratio
+
+
 def test_fit_reports_the_scale_error_through_the_free_radius():
     rng = np.random.default_rng(8)
     true = Cylinder([0, 0, 0], [1, 0, 0], RADIUS)

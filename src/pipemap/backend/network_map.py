@@ -2,8 +2,12 @@
 
 After the VO, each straight section gets cylinders of the pipe radius fitted to its scene points
 (fisheye paper III-D): one to the whole section (its axis, for the unrolled wall image and the
-appearance map, bent where the run sags: `pipemap.geometry.bend`) and one to each of its ends, the points around the first / last `length_m` of
-camera path, relative to the first / last pose. A junction section (frames classified as a
+appearance map, bent where the run sags: `pipemap.geometry.bend`) and one to each of its ends, the
+points around the first / last `length_m` of camera path, relative to the first / last pose. Runs are
+laid from pieces that kink a little at their joints, and the tee solve carries an end cylinder's tilt
+into the next section's heading, so each end is also fitted over half that length, and the half is
+taken where its direction differs from the whole's beyond the noise of both fits (a chi-square test
+on their covariances): a joint kinks within the length. A junction section (frames classified as a
 T-intersection) lies between two straight sections; its centre I is where the end cylinder
 before it and the start cylinder after it meet (the two-cylinder model's intersection point, the
 closest approach of the two axes). When the two axes are nearly parallel the robot went straight
@@ -19,9 +23,11 @@ import numpy as np
 
 from pipemap.frontend.tracks import Keyframe
 from pipemap.geometry.bend import fit_bend
-from pipemap.geometry.cylinder import Cylinder, axis_frame, fit_cylinder
+from pipemap.geometry.cylinder import Cylinder, CylinderFit, axis_frame, fit_cylinder
 
 STRAIGHT_THROUGH_DEG = 20.0  # axes closer to parallel than this cannot place a tee centre
+KINK_CHI2 = 13.8  # chi-square, 2 degrees of freedom, p = 0.001: the end's two directions differ beyond noise
+MAX_KINK_DEG = 3.0  # joints kink by less; a shorter fit that far off has failed (too few points, another pipe's)
 
 
 @dataclass
@@ -34,6 +40,8 @@ class MappedSection:
     end: Cylinder | None  # ... the last length_m, relative to the last pose
     start_h: float = 0.0  # axial extent of the section's camera centres on `cylinder`
     end_h: float = 0.0
+    start_length_m: float = 0.0  # camera path the start / end cylinder was fitted over
+    end_length_m: float = 0.0
     problems: list[str] = field(default_factory=list)
     # The bent axis of the whole section: knots (axial coordinates on `cylinder`) and the axis's
     # world offsets across it there (K, 3); None when straight.
@@ -45,6 +53,7 @@ class MappedSection:
                                            "direction": c.direction.round(6).tolist(), "radius": c.radius}
         return {"section": self.number, "first_keyframe": self.first, "last_keyframe": self.last,
                 "cylinder": cyl(self.cylinder), "start_cylinder": cyl(self.start), "end_cylinder": cyl(self.end),
+                "start_length_m": self.start_length_m, "end_length_m": self.end_length_m,
                 "bend": None if self.bend is None else {"h": self.bend[0].round(6).tolist(),
                                                          "offset": self.bend[1].round(7).tolist()},
                 "problems": self.problems}
@@ -78,14 +87,41 @@ def section_points(keyframes: list[Keyframe], first: int, last: int, tids: np.nd
     return pos[ok]
 
 
-def _fit(points: np.ndarray, centres: np.ndarray, R_ref, c_ref, radius: float, huber: float) -> Cylinder | None:
+def _fit(points: np.ndarray, centres: np.ndarray, R_ref, c_ref, radius: float, huber: float) -> CylinderFit | None:
     direction = centres[-1] - centres[0]
     if len(points) < 20 or np.linalg.norm(direction) < 2 * radius * 0.25:
         return None
     try:
-        return fit_cylinder(points, radius, reference=(R_ref, c_ref), direction=direction, huber=huber).cylinder
+        return fit_cylinder(points, radius, reference=(R_ref, c_ref), direction=direction, huber=huber)
     except (ValueError, np.linalg.LinAlgError):
         return None
+
+
+def _end_fit(end: str, length: float, path: np.ndarray, sec, keyframes, tids_sorted, points_sorted, poses,
+             radius: float, huber_m: float) -> CylinderFit | None:
+    """The cylinder of the points along the section's first / last `length` of camera path (`path`: the
+    distance travelled at each of its keyframes), relative to its first / last pose."""
+    sel = path <= length if end == "start" else path >= path[-1] - length
+    ks = np.flatnonzero(sel) + sec.first
+    k0, k1 = int(ks.min()), int(ks.max())
+    pos = section_points(keyframes, k0, k1, tids_sorted)
+    P, C = points_sorted[pos], poses[k0:k1 + 1, :3, 3]
+    ref = sec.first if end == "start" else sec.last
+    return _fit(P[_near_path(P, C, 0.5 * radius)], C, poses[ref, :3, :3], poses[ref, :3, 3], radius, huber_m)
+
+
+def _straight_end(full: CylinderFit | None, half: CylinderFit | None) -> tuple[CylinderFit | None, bool]:
+    """The end cylinder over the whole fit length, or over its half nearest the tee where the two
+    directions differ by more than the half's extra noise explains (the pipe kinks at a joint
+    within the length); and whether the half was taken."""
+    if full is None or half is None or full.covariance is None or half.covariance is None:
+        return (half, True) if full is None else (full, False)
+    delta = half.params[:2] - full.params[:2]  # both relative to the same end pose
+    extra = half.covariance[:2, :2] - full.covariance[:2, :2]
+    if np.linalg.eigvalsh(extra)[0] <= 0:
+        extra = half.covariance[:2, :2]
+    kinked = float(delta @ np.linalg.solve(extra, delta)) > KINK_CHI2 and np.degrees(np.abs(delta)).max() < MAX_KINK_DEG
+    return (half, True) if kinked else (full, False)
 
 
 def _fit_bend(cyl: Cylinder, points: np.ndarray, huber: float, knot_m: float, kink_rad: float,
@@ -130,19 +166,16 @@ def map_sections(sections, keyframes: list[Keyframe], poses: np.ndarray, points:
         P = points_sorted[pos]
         C = centres[sec.first:sec.last + 1]
         keep = _near_path(P, C, radius)
-        ms.cylinder = _fit(P[keep], C, poses[sec.first, :3, :3], C[0], radius, huber_m)
+        whole = _fit(P[keep], C, poses[sec.first, :3, :3], C[0], radius, huber_m)
+        ms.cylinder = None if whole is None else whole.cylinder
         if ms.cylinder is not None and bend is not None:
             ms.bend = _fit_bend(ms.cylinder, P[keep], huber_m, *bend)
         path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(C, axis=0), axis=1))])
         for end in ("start", "end"):
-            sel = path <= length_m if end == "start" else path >= path[-1] - length_m
-            ks = np.flatnonzero(sel) + sec.first
-            k0, k1 = int(ks.min()), int(ks.max())
-            pos = section_points(keyframes, k0, k1, tids_sorted)
-            Pe, Ce = points_sorted[pos], centres[k0:k1 + 1]
-            ref = k0 if end == "start" else k1
-            cyl = _fit(Pe[_near_path(Pe, Ce, 0.5 * radius)], Ce, poses[ref, :3, :3], centres[ref], radius, huber_m)
-            setattr(ms, end, cyl)
+            fit, shortened = _straight_end(*(_end_fit(end, length, path, sec, keyframes, tids_sorted, points_sorted,
+                                                      poses, radius, huber_m) for length in (length_m, 0.5 * length_m)))
+            setattr(ms, end, None if fit is None else fit.cylinder)
+            setattr(ms, f"{end}_length_m", (0.5 if shortened else 1.0) * length_m)
         if ms.cylinder is not None:
             h = ms.cylinder.axial(C)
             ms.start_h, ms.end_h = float(h[0]), float(h[-1])

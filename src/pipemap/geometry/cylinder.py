@@ -235,6 +235,8 @@ class CylinderFit:
     rms: float  # RMS signed distance of the inliers (m)
     free_radius: float  # radius of the same data fitted with the radius free: radius / free_radius ~ scale error
     iterations: int
+    # (4, 4) of `params`: rms^2 (J^T J)^-1 over the inliers, as if the points' distances were independent
+    covariance: np.ndarray | None = None
 
 
 def axis_frame(direction: np.ndarray) -> np.ndarray:
@@ -327,9 +329,10 @@ def fit_cylinder(points, radius: float, *, reference=None, direction=None, huber
         if np.array_equal(new, inliers) or new.sum() < 5:
             break
         inliers = new
-    d = local_distance(Xm[inliers], p, r, jacobians=False)
+    d, _, J = local_distance(Xm[inliers], p, r)
+    rms = float(np.sqrt(np.mean(d**2)))
     cyl = Cylinder.from_local(p, ref_R, ref_t, r)
-    return CylinderFit(cyl, p, (ref_R, ref_t), inliers, float(np.sqrt(np.mean(d**2))), abs(r_free), it_total)
+    return CylinderFit(cyl, p, (ref_R, ref_t), inliers, rms, abs(r_free), it_total, rms**2 * np.linalg.pinv(J.T @ J))
 
 
 __all__ = ["Cylinder", "CylinderFit", "axis_frame", "fit_cylinder", "local_frame", "local_distance", "distance_jacobians",
