@@ -40,7 +40,7 @@ class MappedSection:
     end: Cylinder | None  # ... the last length_m, relative to the last pose
     start_h: float = 0.0  # axial extent of the section's camera centres on `cylinder`
     end_h: float = 0.0
-    start_length_m: float = 0.0  # camera path the start / end cylinder was fitted over
+    start_length_m: float = 0.0  # camera path the start / end cylinder was fitted over (0: no cylinder)
     end_length_m: float = 0.0
     problems: list[str] = field(default_factory=list)
     # The bent axis of the whole section: knots (axial coordinates on `cylinder`) and the axis's
@@ -167,7 +167,7 @@ def map_sections(sections, keyframes: list[Keyframe], poses: np.ndarray, points:
         C = centres[sec.first:sec.last + 1]
         keep = _near_path(P, C, radius)
         whole = _fit(P[keep], C, poses[sec.first, :3, :3], C[0], radius, huber_m)
-        ms.cylinder = None if whole is None else whole.cylinder
+        ms.cylinder = whole.cylinder if whole is not None else None
         if ms.cylinder is not None and bend is not None:
             ms.bend = _fit_bend(ms.cylinder, P[keep], huber_m, *bend)
         path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(C, axis=0), axis=1))])
@@ -175,7 +175,7 @@ def map_sections(sections, keyframes: list[Keyframe], poses: np.ndarray, points:
             fit, shortened = _straight_end(*(_end_fit(end, length, path, sec, keyframes, tids_sorted, points_sorted,
                                                       poses, radius, huber_m) for length in (length_m, 0.5 * length_m)))
             setattr(ms, end, None if fit is None else fit.cylinder)
-            setattr(ms, f"{end}_length_m", (0.5 if shortened else 1.0) * length_m)
+            setattr(ms, f"{end}_length_m", 0.0 if fit is None else (0.5 if shortened else 1.0) * length_m)
         if ms.cylinder is not None:
             h = ms.cylinder.axial(C)
             ms.start_h, ms.end_h = float(h[0]), float(h[-1])
