@@ -319,12 +319,9 @@ def run_command(
         console.print(f"{sparse.frames} frames, {len(sparse.indices)} keyframes ({method}), camera offset from the axis "
                       f"C_X {sparse.offset[0] * 1e3:.2f} mm, C_Y {sparse.offset[1] * 1e3:.2f} mm -> {out}")
         return
-    if method != "fisheye":
-        raise PipemapError(f"unknown method {method!r} (expected auto, fisheye, {', '.join(DENSE_METHODS)}, "
+    if method not in ("network", "fisheye"):
+        raise PipemapError(f"unknown method {method!r} (expected auto, network, {', '.join(DENSE_METHODS)}, "
                            f"{SPARSE_METHOD})", "--method")
-    if perspective:
-        raise PipemapError("the fisheye pipeline needs a fisheye camera (polynomial or kannala_brandt); "
-                           "this dataset's camera is pinhole: use a dense method", dataset)
     with frame_progress("tracking", keyframes=True) as progress:
         result = run_pipeline(dataset, out, settings, progress=progress, on_stage=stage_notice)
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())

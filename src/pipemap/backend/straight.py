@@ -196,7 +196,15 @@ class StraightVO:
     def _relative_scale(self, kf: Keyframe) -> float:
         """Length of the new step, from tracks that already have 3D points (see the module docstring)."""
         prev = self.keyframes[-1]
-        last_step = np.linalg.norm(self.c[-1] - self.c[-2]) if len(self.c) - 1 > self._chain_first else 1.0
+        last_step = 1.0
+        if len(self.c) - 1 > self._chain_first:
+            # Without enough points the robot is taken to keep its speed: keyframes come at uneven
+            # intervals (a forward view loses its near tracks in bursts), so the last step's length
+            # is scaled by the time this step took.
+            last_step = float(np.linalg.norm(self.c[-1] - self.c[-2]))
+            dt_last = prev.timestamp - self.keyframes[-2].timestamp
+            if dt_last > 0 and kf.timestamp > prev.timestamp:
+                last_step *= (kf.timestamp - prev.timestamp) / dt_last
         cur = np.flatnonzero(kf.inliers)
         _, ip, ic = np.intersect1d(prev.track_ids, kf.track_ids[cur], assume_unique=True, return_indices=True)
         ic = cur[ic]

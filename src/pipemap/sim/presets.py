@@ -13,6 +13,10 @@ for, simulate() keeps the first N frames of the route at the same spacing.
 - fisheye-straight: one straight 400 mm pipe seen by the fisheye.
 - demo-loop: a small 2 m x 1.5 m tee loop at 640x480, fast; route "A" drives the lap and on
   past its start along the first side, so the run revisits it (loop closure).
+- cctv-loop / cctv-straight: a sewer crawler's forward-looking CCTV camera (100 deg, barrel
+  distortion) in a 300 mm tee loop and a straight pipe; the robot wobbles up to 1 deg.
+- wall-camera-90 / -75 / -50: a wall camera off the axis of a 387.56 mm pipe, its optical axis at
+  90, 75 or 50 deg to the pipe axis.
 - white-card: the 2010 report's gain-mask images: a white pipe wall, LEDs on, camera still.
 """
 
@@ -154,11 +158,12 @@ def table_i_corners() -> np.ndarray:
 
 
 def _loop_setup(name, corners, width, height, route, seed, *, fisheye_scale_w=None, stub=0.6, piece=2.75,
-                sag=0.004, misalign=0.002, start_back=1.5, end_before=1.5) -> Setup:
+                sag=0.004, misalign=0.002, start_back=1.5, end_before=1.5, radius=0.2, camera=None,
+                drive_extra=None, appearance=None) -> Setup:
     """A tee loop. Route A: start on side T4-T1, turn at T1, T2, T3, T4, end on side T4-T1
     `end_before` metres short of the start (past it when negative). Route B: start on side T1-T4 heading to T4, turn at T4, T3, T2, T1, T4, end on
     side T4-T3."""
-    scene = tee_loop_scene(corners, 0.2, stub_length=stub, piece_length=piece, sag_m=sag, misalign_m=misalign, seed=seed)
+    scene = tee_loop_scene(corners, radius, stub_length=stub, piece_length=piece, sag_m=sag, misalign_m=misalign, seed=seed)
     n = len(corners)
     if route == "A":
         legs = [(f"S{n}", False)] + [(f"S{k}", False) for k in range(1, n + 1)]
@@ -169,11 +174,14 @@ def _loop_setup(name, corners, width, height, route, seed, *, fisheye_scale_w=No
         side = np.linalg.norm(corners[0] - corners[-1])
         start, end = side - start_back, -(np.linalg.norm(corners[-1] - corners[-2]) - end_before)
     poly = route_polyline(scene, legs)
-    cam = fisheye_camera(width, height) if fisheye_scale_w is None else fisheye_camera(
-        width or fisheye_scale_w[0], height or fisheye_scale_w[1])
+    if camera is not None:
+        cam = camera
+    else:
+        cam = fisheye_camera(width, height) if fisheye_scale_w is None else fisheye_camera(
+            width or fisheye_scale_w[0], height or fisheye_scale_w[1])
     drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", turn_radius_m=0.2, start_m=float(start),
-                  end_m=float(end))
-    return Setup(name, scene, cam, poly, drive, Appearance(mm_per_px=1.0), 7.5)
+                  end_m=float(end), **(drive_extra or {}))
+    return Setup(name, scene, cam, poly, drive, appearance or Appearance(mm_per_px=1.0), 7.5)
 
 
 def _paper_loop(width, height, route, seed):
@@ -236,6 +244,63 @@ def _sixteen_inch(width, height, route, seed):
                           vignetting=0.15)
 
 
+# A sewer crawler's forward-looking CCTV camera: 100 deg across the image, barrel distortion, a ring of
+# LEDs round the lens; the robot rolls and pitches up to 1 deg and moves a few mm sideways.
+CCTV_BASE = dict(width=640, height=480, hfov_deg=100.0, k1=-0.25, k2=0.05)
+CCTV_WOBBLE = dict(wobble_deg=1.0, wobble_m=0.003)
+
+
+def cctv_camera(width=None, height=None) -> PinholeCamera:
+    """The forward-looking CCTV camera; 720x576 (PAL) keeps the horizontal field of view."""
+    b = CCTV_BASE
+    return perspective_camera(b["width"], b["height"], b["hfov_deg"], b["k1"], b["k2"], width, height)
+
+
+def _cctv_appearance() -> Appearance:
+    # A video camera's gamma and an exposure that keeps the near wall from burning out.
+    return Appearance(mm_per_px=1.0, n_leds=8, led_ring_radius_m=0.03, led_beam_half_angle_deg=50.0, vignetting=0.4,
+                      gamma=2.2, exposure_percentile=95.0, exposure_target=0.85)
+
+
+_CCTV_ENDS = {"A": dict(start_back=0.8, end_before=-0.4), "B": dict(start_back=0.8, end_before=0.5)}
+
+
+def _cctv_loop(width, height, route, seed):
+    # 300 mm sewer pipe, a 3.0 m x 2.2 m loop of 1 m pieces with a tee at each corner.
+    corners = np.array([[0, 0, 0], [3.0, 0, 0], [3.0, 2.2, 0], [0, 2.2, 0]], float)
+    return _loop_setup("cctv-loop", corners, width, height, route, seed, stub=0.4, piece=1.0, sag=0.002,
+                       misalign=0.001, radius=0.15, camera=cctv_camera(width, height), drive_extra=CCTV_WOBBLE,
+                       appearance=_cctv_appearance(), **_CCTV_ENDS[route])
+
+
+def _cctv_straight(width, height, route, seed):
+    scene = straight_scene(6.0, 0.15, piece_length=1.0, sag_m=0.002, misalign_m=0.001, seed=seed)
+    drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", start_m=0.5, end_m=5.0,
+                  reverse=route == "forward-reverse", **CCTV_WOBBLE)
+    return Setup("cctv-straight", scene, cctv_camera(width, height), scene.runs["S1"], drive, _cctv_appearance(), 7.5)
+
+
+def _wall_camera(mount_deg: float):
+    """A 640x480, 70 deg camera looking at the wall of a 387.56 mm pipe from 3 cm beside and 4 cm below
+    the axis, its optical axis at `mount_deg` to the pipe axis (turned towards the direction of travel)."""
+
+    def build(width, height, route, seed):
+        radius = 0.38756 / 2
+        scene = straight_scene(4.0, radius, seed=seed)
+        cam = perspective_camera(640, 480, 70.0, -0.12, 0.02, width, height)
+        travel = 3.0
+        start = (4.0 - travel) / 2
+        drive = Drive(spacing_m=0.005, speed_variation=0.15, pause_frames=8, offset_down_m=0.04, offset_side_m=0.03,
+                      look="up", mount_deg=float(mount_deg), start_m=start, end_m=start + travel,
+                      reverse=route == "forward-reverse", **CCTV_WOBBLE)
+        ap = Appearance(texture_style="procedural", mm_per_px=0.5, n_leds=4, led_phase_deg=45.0, led_ring_radius_m=0.04,
+                        led_beam_half_angle_deg=40.0, specular_strength=0.1, vignetting=0.15)
+        return Setup(f"wall-camera-{mount_deg:g}", scene, cam, scene.runs["S1"], drive, ap, 30.0,
+                     notes={"distance_m": travel, "mount_deg": float(mount_deg), "offset_m": [0.03, -0.04]})
+
+    return build
+
+
 def _white_card(width, height, route, seed):
     """White-card frames of the 6-inch robot (route '6in') or the 16-inch one (route '16in')."""
     s = (_sixteen_inch if route == "16in" else _six_inch)(width, height, "forward", seed)
@@ -254,6 +319,15 @@ register_preset("paper-straight-16in", "2010 report pipe 2: 4 m x 387.56 mm, per
 register_preset("fisheye-straight", "one straight 6 m x 400 mm pipe, 190 deg fisheye 1280x960",
                 ("forward", "forward-reverse"), _fisheye_straight)
 register_preset("demo-loop", "small 2 m x 1.5 m tee loop, fisheye 640x480 (fast)", ("A", "B"), _demo_loop)
+register_preset("cctv-loop", "sewer crawler's forward-looking CCTV (100 deg, barrel distortion, 640x480; 720x576 "
+                "keeps the view) in a 3.0 m x 2.2 m loop of 300 mm pipe with a tee at each corner", ("A", "B"),
+                _cctv_loop)
+register_preset("cctv-straight", "forward-looking CCTV (100 deg, 640x480) in a straight 6 m x 300 mm pipe",
+                ("forward", "forward-reverse"), _cctv_straight)
+for _mount in (90, 75, 50):
+    register_preset(f"wall-camera-{_mount}", f"640x480 70 deg camera 3 cm beside and 4 cm below the axis of a 387.56 mm "
+                    f"pipe, its optical axis at {_mount} deg to the pipe axis", ("forward-reverse", "forward"),
+                    _wall_camera(_mount))
 register_preset("white-card", "2010 report gain-mask images: white wall, LEDs on, still camera; writes gain_mask.png; "
                 "route = the robot", ("6in", "16in"), _white_card)
 

@@ -4,8 +4,8 @@ The axis path is a polyline of joint vertices and junction centroids whose corne
 by circular arcs (fillets): `turn_radius` at tees (about a pipe radius), a large radius at the
 slight kinks of misaligned joints. The camera rides `offset_down_m` below the axis (the robot
 sits on the pipe floor; world z is up), looks along the path tangent ('forward', the fisheye
-robot) or straight up at the wall with image x along the pipe ('up', the 2010 report's
-cameras), and wobbles smoothly (a function of distance driven, so a stopped robot is still).
+robot) or up at the wall with image x along the pipe ('up', the 2010 report's cameras; `mount_deg`
+turns it from square to the wall towards the direction of travel), and wobbles smoothly (a function of distance driven, so a stopped robot is still).
 Frames are spaced by distance (about `spacing_m`, varied smoothly: the speed changes); a
 forward-and-reverse run drives to the end, stops, and drives back in reverse still facing
 forward (the 2010 report's forward & reverse datasets).
@@ -122,6 +122,8 @@ class Drive:
     offset_down_m: float = 0.04  # camera below the pipe axis
     offset_side_m: float = 0.0
     look: str = "forward"  # "forward" | "up"
+    mount_deg: float = 90.0  # look "up": angle of the optical axis to the pipe axis (90: square to the wall,
+    # less: turned towards the direction of travel, as wall cameras are mounted to see ahead)
     wobble_deg: float = 0.5
     wobble_m: float = 0.002
     turn_radius_m: float = 0.2
@@ -184,7 +186,11 @@ def camera_trajectory(path: AxisPath, s: np.ndarray, drive: Drive, fps: float, s
     if drive.look == "forward":
         R_path = look_rotation(tan, up)
     elif drive.look == "up":
-        R_path = np.stack([tan, np.cross(up, tan), up], axis=-1)  # x along the pipe, z up at the wall
+        # x along the pipe, z up at the wall, then turned about y so that z leans towards the travel
+        a = np.radians(90.0 - drive.mount_deg)
+        x_cam = np.cos(a) * tan - np.sin(a) * up
+        z_cam = np.cos(a) * up + np.sin(a) * tan
+        R_path = np.stack([x_cam, np.cross(z_cam, x_cam), z_cam], axis=-1)
     else:
         raise PipemapError(f"unknown camera direction {drive.look!r} (expected forward or up)")
     w = np.radians(drive.wobble_deg) * np.stack(wob[2:], axis=-1)
