@@ -191,33 +191,53 @@ def calibrate(
     out: Path = typer.Option(Path("camera.yaml"), "--out", help="Camera file to write."),
     max_theta_deg: Optional[float] = typer.Option(None, "--max-theta-deg", help="Field of view half-angle to record."),
     fix: List[str] = typer.Option([], "--fix", help="Keep a parameter at its initial value (repeatable), e.g. k3."),
+    folds: int = typer.Option(0, "--folds", help="Cross-validate in N folds (>= 2; leave-one-out when N >= the views): "
+                              "each view's error when calibrated without it. 0: off."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output file."),
 ) -> None:
     """Calibrate a camera from checkerboard images: RMS and per-view reprojection error, then the camera block."""
     from pipemap.camera import MODELS
     from pipemap.camera.calibration import calibrate_images, save_calibration
+    from pipemap.camera.crossval import cross_validate
     from pipemap.output import check_new_file, replacing
 
     if model not in MODELS:
         raise PipemapError(f"unknown camera model {model!r} (expected one of {', '.join(MODELS)})", "--model")
     if not square > 0:
         raise PipemapError("must be positive", "--square")
+    if folds < 0 or folds == 1:
+        raise PipemapError("must be 0 (off) or at least 2", "--folds")
     cols_rows = parse_board(board)
     check_new_file(out, force)
     paths = expand_glob(images)
     with console.status(f"calibrating {model} from {len(paths)} images"):
         result = calibrate_images(paths, cols_rows, square, model, max_theta_deg=max_theta_deg, fix=tuple(fix), source=images)
-    table = Table(title=f"{model} calibration: RMS {result.rms_px:.3f} px over {len(result.images)} views")
+    cv = None
+    if folds:
+        with console.status(f"cross-validating in {min(folds, len(result.corners))} folds"):
+            try:
+                cv = cross_validate(result.corners, cols_rows, square, model, result.camera.width, result.camera.height,
+                                    folds, max_theta_deg=max_theta_deg, fix=tuple(fix))
+            except PipemapError as exc:
+                raise PipemapError(exc.message, images, "--folds") from None
+    title = f"{model} calibration: RMS {result.rms_px:.3f} px over {len(result.images)} views"
+    if cv is not None:
+        title += f"; held out in {cv.folds} folds {cv.held_out_rms_px:.3f} px"
+    table = Table(title=title)
     table.add_column("image")
     table.add_column("RMS (px)", justify="right")
-    for path, rms in zip(result.images, result.per_view_rms):
-        table.add_row(Path(path).name, f"{rms:.3f}")
+    if cv is not None:
+        table.add_column("held out (px)", justify="right")
+    for k, (path, rms) in enumerate(zip(result.images, result.per_view_rms)):
+        left_out = sum(1 for v, _ in result.rejected if v == result.used[k])
+        cells = [f"{rms:.3f}" + (f" ({left_out} corner{'s' * (left_out > 1)} left out)" if left_out else "")]
+        table.add_row(Path(path).name, *cells, *([f"{cv.held_out_rms[k]:.3f}"] if cv is not None else []))
     for path, why in result.skipped:
         table.add_row(Path(path).name, f"skipped: {why}")
     console.print(table)
     console.print(repr(result.camera), markup=False)
     with replacing(out) as tmp:
-        save_calibration(tmp, result)
+        save_calibration(tmp, result, cv)
     console.print(f"camera written to {out}")
 
 

@@ -195,3 +195,33 @@ def test_too_few_boards_in_images_names_the_input(tmp_path):
         cv2.imwrite(str(paths[-1]), np.full((120, 160), 90 + k, np.uint8))
     with pytest.raises(PipemapError, match=r"cal/\*\.png.*found in 0 of 4 images"):
         calibrate_images(paths, BOARD, SQUARE, "polynomial", source="cal/*.png")
+
+
+def test_a_misplaced_corner_is_left_out_and_its_view_kept():
+    cam = fisheye_190()
+    views, _ = synthetic_corners(cam, n_views=12, seed=8)
+    views[4] = views[4].copy()
+    views[4][17] += (6.0, -4.0)  # e.g. a corner cut by the image circle or lost in glare
+    res = calibrate(cam, views)
+    assert res.rejected == [(4, 17)] and res.dropped == [] and 4 in res.used
+    assert res.rms_px < 0.5 and abs(res.camera.params[0] / cam.params[0] - 1) < 0.005
+    assert res.per_view_rms[res.used.index(4)] < 0.6
+    assert len(res.corners) == len(res.used) and np.array_equal(res.corners[4], views[4])
+
+
+def test_masked_corners_drop_out_of_residuals_and_jacobian():
+    cam = fisheye_190()
+    views, _ = synthetic_corners(cam, n_views=3, seed=9)
+    obj = board_points(BOARD, SQUARE)
+    poses = np.array([np.concatenate(pose_from_bearings(obj, cam.unproject(v)[0])) for v in views])
+    mask = np.ones((3, len(obj)), bool)
+    mask[1, [0, 5, 30]] = False
+    prob = CalibrationProblem(cam, obj, np.stack(views), np.ones(len(cam.params), bool), mask)
+    x = prob.pack(cam.params, poses[:, :3], poses[:, 3:])
+    r = prob.residuals(x).reshape(3, len(obj), 2)
+    assert np.all(r[~mask] == 0) and np.all(r[mask] != 0)
+    J = prob.jacobian(x).toarray()
+    J_num = approx_derivative(prob.residuals, x, method="3-point")
+    scale = np.abs(J_num).max(axis=0) + 1e-9
+    assert np.all(np.abs(J - J_num).max(axis=0) / scale < 1e-5)
+    assert prob.rms(x) == pytest.approx(np.sqrt(np.sum(r**2) / mask.sum()))

@@ -1,9 +1,10 @@
 """Checkerboard calibration of every pipemap camera model.
 
-Corners are detected with OpenCV; each view's board pose is initialised from bearings (a DLT homography
-between the board plane and unit bearings, which stays valid past 90 deg), and intrinsics and all poses are
-then refined together on the pixel reprojection error by a sparse least-squares problem whose Jacobian is
-analytic: the camera model's own `project_jacobian` chained with the derivative of the board pose.
+Corners are found by OpenCV and placed by a point-symmetry fit (`corners.py`); each view's board pose is
+initialised from bearings (a DLT homography between the board plane and unit bearings, which stays valid past
+90 deg), and intrinsics and all poses are then refined together on the pixel reprojection error by a sparse
+least-squares problem whose Jacobian is analytic: the camera model's own `project_jacobian` chained with the
+derivative of the board pose. Single corners far off the fit are left out of it, whole views far off dropped.
 A pose maps board to camera, X_cam = exp(rvec) X_board + tvec, with inner corner (i, j) at (i, j, 0) * square.
 """
 
@@ -18,11 +19,17 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 from pipemap.camera import MODELS, CameraModel, save_camera
+from pipemap.camera.corners import detect_corners
 from pipemap.errors import PipemapError
 from pipemap.geometry.rotations import exp_so3, log_so3, skew
 
 NOMINAL_FOV_DEG = 95.0  # half field of view assumed by the fisheye initial guess (a 190 deg lens)
 MIN_VIEWS = 3
+# A corner is left out when its error exceeds this many times the median corner error, and this floor:
+# a corner the detector could not place (cut by the image circle, glare, a washed-out tip) would otherwise
+# cost its whole view or bend the fit. A view keeping fewer than MIN_KEPT of its corners is dropped instead.
+CORNER_FLOOR_PX = 1.0
+MIN_KEPT = 0.5
 DENSE_LIMIT = 2000  # unknowns up to which the trust-region steps are solved exactly
 # Parameters refined in the first stage, before the distortion terms are released.
 _LINEAR = {"polynomial": ("k1", "u0", "v0"), "kannala_brandt": ("fx", "fy", "cx", "cy"),
@@ -40,6 +47,8 @@ class CalibrationResult:
     dropped: list[tuple[int, str]] = field(default_factory=list)  # input index, reason
     board: tuple[int, int] = (9, 6)
     square: float = 0.025
+    rejected: list[tuple[int, int]] = field(default_factory=list)  # (input view, corner index) left out of the fit
+    corners: list[np.ndarray] = field(default_factory=list)  # (nx * ny, 2) detected corners of each kept view
     images: list[Path] = field(default_factory=list)  # calibrate_images: the image of each kept view
     skipped: list[tuple[Path, str]] = field(default_factory=list)  # calibrate_images: images not used, why
 
@@ -52,39 +61,6 @@ def board_points(board=(9, 6), square: float = 0.025) -> np.ndarray:
     nx, ny = board
     i, j = np.meshgrid(np.arange(nx), np.arange(ny))
     return np.stack([i.ravel() * square, j.ravel() * square, np.zeros(nx * ny)], axis=-1)
-
-
-def detect_corners(image: np.ndarray, board=(9, 6)) -> np.ndarray | None:
-    """Inner corners (nx * ny, 2) in the order of `board_points`, or None when the board is not found.
-
-    Either detector may start the grid at another corner; every such order is a symmetry of the grid,
-    i.e. the same board under another rigid pose, so calibration is unaffected.
-    """
-    gray = _to_gray8(image)
-    ok, corners = cv2.findChessboardCornersSB(gray, board, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
-    if not ok:
-        flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-        ok, corners = cv2.findChessboardCorners(gray, board, flags=flags)
-        if not ok:
-            return None
-    corners = corners.reshape(-1, 1, 2).astype(np.float32)
-    # SB's own refinement assumes straight edges; on a fisheye's curved squares a small
-    # gradient-based window sized to the local square spacing is several times more accurate.
-    grid = corners.reshape(board[1], board[0], 2)
-    spacing = min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(), np.linalg.norm(np.diff(grid, axis=1), axis=-1).min())
-    win = int(np.clip(spacing / 4, 2, 6))
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
-    corners = cv2.cornerSubPix(gray, corners, (win, win), (-1, -1), criteria)
-    return corners.reshape(-1, 2).astype(float)
-
-
-def _to_gray8(image: np.ndarray) -> np.ndarray:
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-    if img.dtype != np.uint8:
-        img = cv2.normalize(img.astype(np.float32), None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-    return img
 
 
 # -- initialisation --------------------------------------------------------------------------------
@@ -157,15 +133,18 @@ def _left_jacobian(w: np.ndarray) -> np.ndarray:
 class CalibrationProblem:
     """Reprojection residuals of V views of one board over the free intrinsics and 6 pose parameters a view.
 
-    x = [free intrinsics, (rvec, tvec) of view 0, (rvec, tvec) of view 1, ...].
+    x = [free intrinsics, (rvec, tvec) of view 0, (rvec, tvec) of view 1, ...]. Corners outside `mask` (V, N)
+    keep their rows with zero residual and zero Jacobian, so that the problem's shape does not change.
     """
 
-    def __init__(self, camera: CameraModel, obj: np.ndarray, observed: np.ndarray, free: np.ndarray):
+    def __init__(self, camera: CameraModel, obj: np.ndarray, observed: np.ndarray, free: np.ndarray,
+                 mask: np.ndarray | None = None):
         self.camera = camera
         self.obj = np.asarray(obj, float)
         self.observed = np.asarray(observed, float)  # (V, N, 2)
         self.free = np.asarray(free, bool)
         self.n_views, self.n_points = self.observed.shape[:2]
+        self.mask = np.ones((self.n_views, self.n_points), bool) if mask is None else np.asarray(mask, bool)
 
     def pack(self, params: np.ndarray, rvecs: np.ndarray, tvecs: np.ndarray) -> np.ndarray:
         return np.concatenate([params[self.free], np.concatenate([rvecs, tvecs], axis=1).ravel()])
@@ -188,7 +167,7 @@ class CalibrationProblem:
         params, rvecs, tvecs = self.unpack(x)
         cam = self._camera(params)
         uv = cam.project_jacobian(self._points(rvecs, tvecs)[1])[0]
-        r = (uv - self.observed).ravel()
+        r = np.where(self.mask[..., None], uv - self.observed, 0.0).ravel()
         return np.where(np.isfinite(r), r, 1e6)
 
     def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
@@ -198,6 +177,8 @@ class CalibrationProblem:
         _, J_point, J_params = cam.project_jacobian(Xc)
         dX_dw = -skew(Xr) @ _left_jacobian(rvecs)[:, None]  # (V, N, 3, 3)
         J_pose = np.concatenate([J_point @ dX_dw, J_point], axis=-1)  # (V, N, 2, 6)
+        keep = self.mask[..., None, None]
+        J_pose, J_params = J_pose * keep, J_params * keep
         m, nf = self.observed.size, int(self.free.sum())
         rows = np.arange(m)
         view_of_row = rows // (2 * self.n_points)
@@ -209,9 +190,17 @@ class CalibrationProblem:
         shape = (m, nf + 6 * self.n_views)
         return sp.csr_matrix((data, (np.concatenate([r_int, r_pose]), np.concatenate([c_int, c_pose]))), shape=shape)
 
+    def corner_errors(self, x: np.ndarray) -> np.ndarray:
+        """(V, N) reprojection error of each corner, pixels; zero outside the mask."""
+        return np.linalg.norm(self.residuals(x).reshape(self.n_views, self.n_points, 2), axis=-1)
+
     def view_rms(self, x: np.ndarray) -> np.ndarray:
-        r = self.residuals(x).reshape(self.n_views, self.n_points, 2)
-        return np.sqrt(np.mean(np.sum(r**2, axis=-1), axis=1))
+        e2 = self.corner_errors(x) ** 2
+        return np.sqrt(e2.sum(axis=1) / np.maximum(self.mask.sum(axis=1), 1))
+
+    def rms(self, x: np.ndarray) -> float:
+        """Over the corners in use, per corner (both coordinates), as OpenCV reports it."""
+        return float(np.sqrt(np.sum(self.corner_errors(x) ** 2) / max(int(self.mask.sum()), 1)))
 
     def solve(self, x0: np.ndarray, max_nfev: int = 100):
         # The sparse Jacobian is assembled either way. Up to a few hundred views MINPACK's dense
@@ -265,9 +254,9 @@ def calibrate_from_corners(views, board=(9, 6), square: float = 0.025, model: st
     names = cam.param_names
     free_all = np.array([n not in fix for n in names])
     stage1 = free_all & np.array([n in _LINEAR[model] for n in names])
-    cam, poses, _, n = _refine(cam, obj, observed[used], poses, stage1)
+    cam, poses, _, _, n = _refine(cam, obj, observed[used], poses, stage1)
     iterations += n
-    cam, poses, _, n = _refine(cam, obj, observed[used], poses, free_all)
+    cam, poses, _, _, n = _refine(cam, obj, observed[used], poses, free_all)
     iterations += n
     # A pose initialised under the rough first camera can sit in the mirror minimum of a planar target
     # (the tilt ambiguity of near-frontal boards); start every view again from the refined camera.
@@ -276,9 +265,20 @@ def calibrate_from_corners(views, board=(9, 6), square: float = 0.025, model: st
         poses.ravel())
     poses = np.where((fresh_rms < old_rms)[:, None], fresh, poses)
     iterations += n
-    for _ in range(2):
-        cam, poses, rms, n = _refine(cam, obj, observed[used], poses, free_all)
+    mask = np.ones(observed.shape[:2], bool)  # corners in use, by input view
+    for attempt in range(6):
+        cam, poses, rms, errors, n = _refine(cam, obj, observed[used], poses, free_all, mask[used])
         iterations += n
+        if attempt == 5:
+            break
+        bad = mask[used] & (errors > max(outlier_factor * np.median(errors[mask[used]]), CORNER_FLOOR_PX))
+        if bad.any():
+            mask[np.asarray(used)] &= ~bad
+            few = mask[used].mean(axis=1) < MIN_KEPT
+            dropped += [(used[k], f"{int(bad[k].sum())} of {len(obj)} corners off the fit") for k in np.nonzero(few)[0]]
+            used, poses = [u for u, f in zip(used, few) if not f], poses[~few]
+            _check_count(used, views)
+            continue
         keep = _inliers(rms, outlier_factor, floor_px=1.0)
         if keep.all():
             break
@@ -291,29 +291,50 @@ def calibrate_from_corners(views, board=(9, 6), square: float = 0.025, model: st
     except PipemapError as exc:
         raise PipemapError(f"calibration gave an invalid {model} camera ({exc.message}); add views that reach "
                            "the edge of the image or fix the highest distortion term") from None
-    prob = CalibrationProblem(final, obj, observed[used], free_all)
+    prob = CalibrationProblem(final, obj, observed[used], free_all, mask[used])
     x = prob.pack(final.params, poses[:, :3], poses[:, 3:])
-    r = prob.residuals(x)
+    rejected = [(u, int(i)) for u in used for i in np.nonzero(~mask[u])[0]]
     return CalibrationResult(
-        camera=final, rms_px=float(np.sqrt(np.mean(r.reshape(-1, 2) ** 2) * 2)),
+        camera=final, rms_px=prob.rms(x),
         per_view_rms=[float(e) for e in prob.view_rms(x)], poses=[(p[:3].copy(), p[3:].copy()) for p in poses],
-        iterations=int(iterations), used=used, dropped=sorted(dropped), board=tuple(board), square=float(square))
+        iterations=int(iterations), used=used, dropped=sorted(dropped), board=tuple(board), square=float(square),
+        rejected=rejected, corners=[views[u].copy() for u in used])
 
 
-def _fit_poses(cam: CameraModel, obj, observed) -> tuple[np.ndarray, np.ndarray, int]:
+def fit_view(camera: CameraModel, corners: np.ndarray, board=(9, 6), square: float = 0.025,
+             outlier_factor: float = 5.0) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """One view's board pose under a fixed camera, with the calibration's corner test:
+    rvec, tvec, rms over the corners kept, and the mask of corners kept."""
+    obj = board_points(board, square)
+    observed = np.asarray(corners, float).reshape(1, -1, 2)
+    mask = np.ones(observed.shape[:2], bool)
+    for attempt in range(4):
+        poses, rms, _ = _fit_poses(camera, obj, observed, mask)
+        errors = CalibrationProblem(camera, obj, observed, np.zeros(len(camera.params), bool), mask).corner_errors(
+            poses.ravel())
+        bad = mask & (errors > max(outlier_factor * np.median(errors[mask]), CORNER_FLOOR_PX))
+        if attempt == 3 or not bad.any() or (mask & ~bad).mean() < MIN_KEPT:
+            break
+        mask &= ~bad
+    return poses[0, :3], poses[0, 3:], float(rms[0]), mask[0]
+
+
+def _fit_poses(cam: CameraModel, obj, observed, mask=None) -> tuple[np.ndarray, np.ndarray, int]:
     """Each view's pose from bearings under `cam`, then refined with the intrinsics held: (V, 6), rms, njev."""
-    poses = np.array([np.concatenate(pose_from_bearings(obj, cam.unproject(v)[0])) for v in observed])
-    prob = CalibrationProblem(cam, obj, observed, np.zeros(len(cam.params), bool))
+    mask = np.ones(np.shape(observed)[:2], bool) if mask is None else mask
+    poses = np.array([np.concatenate(pose_from_bearings(obj[m], cam.unproject(v[m])[0])) for v, m in zip(observed, mask)])
+    prob = CalibrationProblem(cam, obj, observed, np.zeros(len(cam.params), bool), mask)
     sol = prob.solve(poses.ravel(), max_nfev=50)
     return sol.x.reshape(-1, 6), prob.view_rms(sol.x), int(sol.njev)
 
 
-def _refine(cam: CameraModel, obj, observed, poses, free):
-    """Intrinsics (where `free`) and all poses together: camera, poses, per-view rms, njev."""
-    prob = CalibrationProblem(cam, obj, observed, free)
+def _refine(cam: CameraModel, obj, observed, poses, free, mask=None):
+    """Intrinsics (where `free`) and all poses together: camera, poses, per-view rms, per-corner errors, njev."""
+    prob = CalibrationProblem(cam, obj, observed, free, mask)
     sol = prob.solve(prob.pack(cam.params, poses[:, :3], poses[:, 3:]))
     params, rvecs, tvecs = prob.unpack(sol.x)
-    return _trial_camera(cam, params), np.concatenate([rvecs, tvecs], axis=1), prob.view_rms(sol.x), int(sol.njev)
+    return (_trial_camera(cam, params), np.concatenate([rvecs, tvecs], axis=1), prob.view_rms(sol.x),
+            prob.corner_errors(sol.x), int(sol.njev))
 
 
 def _inliers(rms: np.ndarray, factor: float, floor_px: float) -> np.ndarray:
@@ -368,15 +389,28 @@ def calibrate_images(paths, board=(9, 6), square: float = 0.025, model: str = "p
     return result
 
 
-def save_calibration(path: str | Path, result: CalibrationResult) -> None:
-    """Write the camera file with the calibration residuals beside the `camera:` block."""
+def save_calibration(path: str | Path, result: CalibrationResult, cross_validation=None) -> None:
+    """Write the camera file with the calibration residuals (and a `CrossValidation` of the same views)
+    beside the `camera:` block."""
     names = [p.name for p in result.images] or [f"view {k}" for k in result.used]
+    views = [{"image": n, "rms_px": round(float(e), 4)} for n, e in zip(names, result.per_view_rms)]
+    for view, u in zip(views, result.used):
+        left_out = sum(1 for v, _ in result.rejected if v == u)
+        if left_out:
+            view["corners_left_out"] = left_out
+    if cross_validation is not None:
+        for view, e in zip(views, cross_validation.held_out_rms):
+            view["held_out_rms_px"] = round(float(e), 4)
     calibration = {
         "rms_px": round(float(result.rms_px), 4),
-        "views": [{"image": n, "rms_px": round(float(e), 4)} for n, e in zip(names, result.per_view_rms)],
+        "views": views,
         "board": f"{result.board[0]}x{result.board[1]}",
         "square_m": float(result.square),
     }
+    if cross_validation is not None:
+        calibration["cross_validation"] = {"folds": cross_validation.folds,
+                                           "train_rms_px": round(cross_validation.train_rms_px, 4),
+                                           "held_out_rms_px": round(cross_validation.held_out_rms_px, 4)}
     if result.skipped:
         calibration["skipped"] = [{"image": Path(p).name, "reason": why} for p, why in result.skipped]
     save_camera(path, result.camera, extra={"calibration": calibration})
