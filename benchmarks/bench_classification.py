@@ -44,6 +44,8 @@ SCENES = [  # name, preset, route, width, height, seed, spacing_m
     ("demo-A-640-s0", "demo-loop", "A", 640, 480, 0, 0.03),
     ("demo-B-320-s0", "demo-loop", "B", 320, 240, 0, 0.03),
     ("straight-320-s0", "fisheye-straight", None, 320, 240, 0, 0.05),
+    ("cctv-A-640-s1", "cctv-loop", "A", 640, 480, 1, 0.03),  # forward-looking CCTV, 100 deg perspective
+    ("cctv-B-640-s2", "cctv-loop", "B", 640, 480, 2, 0.03),
 ]
 QUICK = {"paper-A-320-s0", "demo-A-320-s0", "demo-B-320-s0", "straight-320-s0"}
 SWEEP_SCENES = ("paper-A-320-s0", "paper-B-320-s0", "demo-A-320-s0", "demo-B-320-s0")
@@ -153,6 +155,7 @@ def sweep(cache: dict, base: ClassificationSettings) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="four small scenes only")
+    ap.add_argument("--scenes", nargs="+", default=None, help="only these scenes (names above)")
     ap.add_argument("--cache", type=Path, help="keep / reuse the renders in this folder")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "classification.json")
     args = ap.parse_args(argv)
@@ -167,7 +170,7 @@ def main(argv=None) -> int:
     results, cache = {}, {}
     try:
         for name, *spec in SCENES:
-            if args.quick and name not in QUICK:
+            if (args.quick and name not in QUICK) or (args.scenes and name not in args.scenes):
                 continue
             path = render(root, name, *spec)
             res, images, dataset = run_scene(path, settings, keep=name in SWEEP_SCENES)

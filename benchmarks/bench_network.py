@@ -41,9 +41,11 @@ def dataset(args, route: str, frames: int | None = None) -> Path:
     return root
 
 
-def run_case(data: Path, out: Path, overrides: list[str]) -> dict:
+def run_case(data: Path, out: Path, overrides: list[str], method: str | None = None) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     cmd = [sys.executable, "-m", "pipemap", "run", str(data), "--out", str(out)]
+    if method is not None:
+        cmd += ["--method", method]
     for o in overrides:
         cmd += ["--set", o]
     t = time.perf_counter()
@@ -82,6 +84,7 @@ def run_case(data: Path, out: Path, overrides: list[str]) -> dict:
         "junctions": None if j is None else {"estimated": j.estimated_count, "truth": j.truth_count},
         "sections": [s.as_dict() for s in m.sections],
         "problems": run.get("problems", []),
+        "method": output.splitlines()[0] if output.startswith("method:") else None,
         "loop_closure": run.get("loop_closure"),
     }
 

@@ -306,31 +306,39 @@ def run_command(
     dataset: Path = typer.Argument(..., help="Dataset folder or its dataset.yaml."),
     out: Path = typer.Option(..., "--out", help="Result folder to create (must not exist or be empty)."),
     method: str = typer.Option("auto", "--method",
-                               help="auto | fisheye | dense-full-search | dense-lk | dense-hybrid | sparse-cylinder."),
+                               help="auto | network (alias fisheye) | dense-full-search | dense-lk | dense-hybrid | "
+                                    "sparse-cylinder. auto: network for a camera looking along the pipe, "
+                                    "dense-hybrid for one looking at its wall."),
     config: Optional[Path] = CONFIG_OPTION,
     set_: List[str] = SET_OPTION,
 ) -> None:
     """Map a dataset and write trajectory.tum, frames.csv, run.json (and sparse.ply, or unrolled/).
 
-    fisheye (the default for fisheye cameras): feature tracking, straight/junction labels, metric
-    straight-section VO with cylinder-regularised sliding-window SBA. dense-* (the default
-    dense-hybrid for perspective cameras looking at the wall of a straight pipe, the 2010 report):
-    image registration by full search, Lucas-Kanade or both, scaled by the pixels-per-metre
-    reference (set dense.camera_offset_m or dense.pixels_per_metre)."""
-    from pipemap.camera import PinholeCamera
+    network (any camera looking along the pipe: fisheye or forward-looking perspective): feature
+    tracking, straight/junction labels, metric straight-section VO with cylinder-regularised
+    sliding-window SBA, tees, loop closure, appearance maps. dense-* (dense-hybrid for a camera
+    looking at the wall of a straight pipe, the 2010 report): image registration by full search,
+    Lucas-Kanade or both; sparse-cylinder: sparse VO held to the wall. auto measures which way the
+    camera looks over the first frames and says what it chose."""
     from pipemap.dataset import load_dataset
     from pipemap.pipeline import run_pipeline
     from pipemap.straight import DENSE_METHODS, run_dense
     from pipemap.straight.sparse import SPARSE_METHOD, run_sparse
 
     settings = _load_settings(config, set_)
-    perspective = isinstance(load_dataset(dataset).camera, PinholeCamera)
     if method == "auto":
-        method = "dense-hybrid" if perspective else "fisheye"
+        from pipemap.view import camera_view
+
+        with console.status("checking which way the camera looks"):
+            view = camera_view(load_dataset(dataset), settings)
+        method = view.method
+        console.print(f"method: {method} ({view.reason()})", markup=False)
     if method in DENSE_METHODS:
         with frame_progress(method) as progress:
             dense = run_dense(dataset, out, settings, method, progress=progress)
         console.print(f"{len(dense.indices)} frames registered ({method}) -> {out}")
+        if dense.mount is not None:
+            console.print(dense.mount.line(), markup=False)
         console.print(f"scale: {dense.zeta:.1f} px/m from {dense.zeta_source}", markup=False)
         return
     if method == SPARSE_METHOD:

@@ -37,7 +37,11 @@ class FrontendSettings(_Section):
     zncc_min: float = Field(0.8, gt=-1, le=1, description="minimum ZNCC score of a guided match")
     keyframe_min_flow_px: float = Field(10.0, ge=0, description="new keyframe when median sparse flow exceeds this")
     keyframe_min_tracked: float = Field(
-        0.5, ge=0, le=1, description="... or inlier matches fall below this fraction of the most any frame had since the keyframe")
+        0.7, ge=0, le=1, description="... or inlier matches fall below this fraction of the most any frame had since "
+        "the keyframe. A camera looking along the pipe loses its near, fast tracks first, so the median flow of the "
+        "rest can shrink while the camera moves on: at 0.5 the keyframe came when the new one shared 10-20 % of its "
+        "tracks with scene points, and the scale slipped by 10 % (forward CCTV, cctv-loop); the fisheye's keyframes "
+        "come by flow before either")
     # What the paper leaves open: measured on renders at 640x480, also used at 1280x960.
     min_distance_px: int = Field(3, ge=1, description="non-maximum suppression radius of Harris corners")
     harris_quality: float = Field(0.001, ge=0, lt=1, description="corners weaker than this x the region's strongest are dropped")
@@ -122,6 +126,14 @@ class StraightVOSettings(_Section):
     min_scale_points: int = Field(8, gt=0, description="fewer points: the step keeps the previous step's length")
     first_window: int = Field(20, gt=1, description="keyframes before the first SBA and metric rescale of a section")
     fixed_overlap: int | None = Field(None, gt=0, description="hold at most this many solved poses per window (None: all)")
+    resection_min_points: int | None = Field(20, gt=5, description="a new keyframe's chained pose is refined "
+                                             "against the scene points it sees when it sees at least this many "
+                                             "(None: off): a perspective camera looking along the pipe trades "
+                                             "rotation for sideways translation in its five-point pose")
+    scale_drift: float | None = Field(0.02, gt=0, description="a window solves early once the median radius of the "
+                                      "points triangulated since the last solve differs from the pipe's by this "
+                                      "fraction (None: only every bundle.step keyframes): a camera looking along the "
+                                      "pipe can let the chained scale slip by tenths within 50 keyframes")
     min_window_points: int = Field(30, gt=0, description="fewer points: no window solve")
     min_window_keyframes: int = Field(3, gt=1)
     max_colatitude_deg: float | None = Field(70.0, gt=0, le=180, description="window observations beyond this angle "
@@ -167,8 +179,10 @@ class AppearanceSettings(_Section):
     enabled: bool = Field(True, description="write appearance.ply and unrolled/ in pipemap run")
 
     spacing_m: float = Field(0.002, gt=0, description="point spacing on the fitted cylinders")
-    min_theta_deg: float = Field(50.0, ge=0, description="use pixels with colatitude above this ...")
-    max_theta_deg: float = Field(90.0, gt=0, description="... and below this")
+    min_theta_deg: float | None = Field(None, ge=0, description="use pixels with colatitude above this ... (None: 5/9 "
+                                        "of the upper limit, the paper's 50 deg on its 190 deg fisheye)")
+    max_theta_deg: float | None = Field(None, gt=0, description="... and below this (None: 90 deg, or the widest "
+                                        "colatitude the camera's image holds when that is less)")
     edge_taper_deg: float = Field(5.0, ge=0, description="samples are weighted up from 0 over this many degrees inside "
                                   "either colatitude limit, so that keyframe band edges leave no seams (0: plain mean)")
     unrolled_px_m: float = Field(0.002, gt=0, description="metres per pixel of unrolled wall images")

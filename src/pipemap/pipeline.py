@@ -40,6 +40,7 @@ from pipemap.geometry.bend import OFFSET_SIGMA_M
 from pipemap.mapping import WallPiece, write_maps
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.trajectory import Trajectory, write_tum
+from pipemap.view import check_wall_in_view
 
 
 @dataclass
@@ -260,6 +261,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
     """
     settings = settings or Settings()
     dataset = load_dataset(dataset_path)
+    check_wall_in_view(dataset)
     start = time.perf_counter()
     stage = on_stage or (lambda name: None)
     with result_folder(Path(out_dir)) as tmp:

@@ -20,7 +20,10 @@ def test_defaults_are_the_papers_values():
     assert (s.bundle.window, s.bundle.step, s.bundle.tau) == (100, 50, 2.5e5)
     assert s.sparse.grid == (6, 8) and s.sparse.corners_per_cell == 20 and s.sparse.nms_px == 7
     assert (s.sparse.sigma_w, s.sparse.sigma_d, s.sparse.harris_k) == (3.0, 1.5, 0.04)
-    assert (s.appearance.min_theta_deg, s.appearance.max_theta_deg) == (50.0, 90.0)
+    from pipemap.mapping.appearance import colatitude_band
+    from pipemap.sim.presets import fisheye_camera
+
+    assert colatitude_band(s.appearance, fisheye_camera(640, 480)) == (50.0, 90.0)
 
 
 def test_yaml_then_overrides(tmp_path):

@@ -150,3 +150,18 @@ def test_perspective_dataset(six_inch_dataset):
     assert 0.0005 < np.median(step) < 0.002  # the report's ~1.4 mm per frame
     img = ds.read(5).image
     assert img.std() > 5 and img.mean() > 40  # a lit, textured wall fills the frame
+
+
+@pytest.mark.parametrize("preset, mount", [("wall-camera-90", 90.0), ("wall-camera-75", 75.0),
+                                           ("wall-camera-50", 50.0), ("cctv-straight", 0.0)])
+def test_camera_mounts_and_wobble(preset, mount):
+    p = plan(preset, frames=300, seed=1)
+    pos, tan = p.path.evaluate(p.s)
+    axis_angle = np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", p.trajectory.rotations[:, :, 2], tan), -1, 1)))
+    # the optical axis at the mount angle to the pipe axis; the robot rolls and pitches up to 1 deg about each axis
+    assert abs(np.median(axis_angle) - mount) < 0.5
+    assert np.max(np.abs(axis_angle - mount)) < 1.8
+    assert np.max(np.abs(axis_angle - mount)) > 0.3  # it does wobble
+    off = p.trajectory.positions - pos
+    side, down = (0.03, 0.04) if preset.startswith("wall") else (0.0, 0.04)
+    assert np.allclose(np.median(np.abs(off), axis=0), [0.0, side, down], atol=0.003)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from pipemap.backend.angular import angular_residuals, refine_huber, tangent_bases
 from pipemap.camera import CameraModel
 from pipemap.config import Settings
 from pipemap.frontend.harris import detect_corners, flatten_lighting, valid_mask
@@ -113,26 +114,6 @@ def match_sift(desc_i: np.ndarray, desc_j: np.ndarray, ratio: float) -> tuple[np
     return rows[good], best_j[good]
 
 
-def _tangent_bases(b: np.ndarray) -> np.ndarray:
-    """(M, 3, 2) orthonormal bases of the tangent planes of unit bearings b (M, 3)."""
-    helper = np.where(np.abs(b[:, :1]) < 0.9, _I3[0], _I3[1])
-    e1 = np.cross(b, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    return np.stack([e1, np.cross(b, e1)], axis=-1)
-
-
-def angular_residuals(points: np.ndarray, bearings: np.ndarray, bases: np.ndarray, jacobian: bool = False):
-    """Tangent-plane error (M, 2) of camera-frame points against observed bearings (about the angle,
-    radians), and its derivative with respect to the point (M, 2, 3)."""
-    norm = np.linalg.norm(points, axis=1)
-    unit = points / norm[:, None]
-    r = np.einsum("mik,mi->mk", bases, unit)
-    if not jacobian:
-        return r
-    proj = (_I3 - unit[:, :, None] * unit[:, None, :]) / norm[:, None, None]
-    return r, np.einsum("mik,mij->mkj", bases, proj)
-
-
 class _TwoWayProblem:
     """Angular errors of image-i wall points seen from camera j and image-j wall points seen from camera i,
     as a function of the right perturbation delta of T_ij = (R, t). Jacobians are taken at delta = 0: the
@@ -140,8 +121,8 @@ class _TwoWayProblem:
 
     def __init__(self, R, t, X_i, b_j, X_j, b_i):
         self.R, self.t = R, t
-        self.X_i, self.b_j, self.B_j = X_i, b_j, _tangent_bases(b_j)
-        self.X_j, self.b_i, self.B_i = X_j, b_i, _tangent_bases(b_i)
+        self.X_i, self.b_j, self.B_j = X_i, b_j, tangent_bases(b_j)
+        self.X_j, self.b_i, self.B_i = X_j, b_i, tangent_bases(b_i)
 
     def moved(self, delta) -> "_TwoWayProblem":
         return _TwoWayProblem(*retract(self.R, self.t, delta), self.X_i, self.b_j, self.X_j, self.b_i)
@@ -173,38 +154,6 @@ class _TwoWayProblem:
         """Angular error per match (M,): the larger of its two directions."""
         r = self.residuals().reshape(2, -1, 2)
         return np.max(np.linalg.norm(r, axis=-1), axis=0)
-
-
-def _huber(a: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
-    """Cost and IRLS weight of errors a >= 0."""
-    return np.where(a <= k, a * a, 2 * k * a - k * k), np.where(a <= k, 1.0, k / np.maximum(a, 1e-300))
-
-
-def _refine(problem: _TwoWayProblem, huber: float, iterations: int = 30) -> _TwoWayProblem:
-    """Levenberg-Marquardt with Huber IRLS weights on each bearing's angular error."""
-    r, J = problem.residuals(jacobian=True)
-    cost = _huber(np.linalg.norm(r.reshape(-1, 2), axis=1), huber)[0].sum()
-    lam = 1e-3
-    for _ in range(iterations):
-        w = np.repeat(_huber(np.linalg.norm(r.reshape(-1, 2), axis=1), huber)[1], 2)
-        H = J.T @ (w[:, None] * J)
-        g = J.T @ (w * r)
-        while lam < 1e8:
-            step = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), -g)
-            trial = problem.moved(step)
-            r_new = trial.residuals()
-            c_new = _huber(np.linalg.norm(r_new.reshape(-1, 2), axis=1), huber)[0].sum()
-            if c_new <= cost:
-                break
-            lam *= 10.0
-        else:
-            return problem
-        done = cost - c_new <= 1e-12 * cost or np.linalg.norm(step) < 1e-12
-        problem, cost, lam = trial, c_new, max(lam * 0.3, 1e-9)
-        r, J = problem.residuals(jacobian=True)
-        if done:
-            break
-    return problem
 
 
 def _translation_given_rotation(R, X_i, b_j, X_j, b_i) -> np.ndarray:
@@ -261,12 +210,12 @@ def relative_pose(camera: CameraModel, image_i: np.ndarray, image_j: np.ndarray,
     # X_j = R X_i + t  <=>  T_ij = (R^T, -R^T t)
     problem = _TwoWayProblem(five.R.T, -five.R.T @ t, X_i[use], b_j[use], X_j[use], b_i[use])
     for _ in range(2):  # refine, drop what disagrees with the refined pose, refine again
-        problem = _refine(problem, threshold)
+        problem = refine_huber(problem, threshold)
         keep = problem.errors() < threshold
         if keep.sum() < lc.min_inliers:
             return None
         problem = problem.subset(keep)
-    problem = _refine(problem, threshold)
+    problem = refine_huber(problem, threshold)
     r, J = problem.residuals(jacobian=True)
     # Covariance of the right perturbation from the Gauss-Newton Hessian and the residuals' own scale
     # (an approximation: each match enters twice, and the fitted walls' errors are not in it -- hence

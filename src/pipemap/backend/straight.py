@@ -38,11 +38,14 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from pipemap.backend.bundle import BundleProblem, Observations
+from pipemap.backend.resection import resect
 from pipemap.backend.triangulate import triangulate_rays
 from pipemap.camera.base import CameraModel
 from pipemap.config import Settings
+from pipemap.frontend.tracker import pixel_angle
 from pipemap.frontend.tracks import Keyframe
 from pipemap.geometry.cylinder import fit_cylinder
 from pipemap.geometry.se3 import world_to_camera
@@ -60,7 +63,8 @@ class WindowReport:
     iterations: int
     rms_px: float
     cylinder_rms_m: float
-    rescale: float  # the metric rescale applied before this solve (1.0 after the first window)
+    rescale: float  # the rescale applied before this solve: the section's by its free radius (first window), or
+    # the not yet solved keyframes' so that their points meet the wall of the solved ones
     step_scale: float  # mean keyframe step length in the window after the solve over before it
 
     def to_dict(self) -> dict:
@@ -129,6 +133,9 @@ class StraightVO:
         self._min_cos = -1.0 if m is None else float(np.cos(np.radians(m)))
         self._t_rel = 0.0
         self._t_win = 0.0
+        self._wall = None  # the current section's wall as its last window solve left it
+        self._fresh: list[np.ndarray] = []  # points triangulated since then
+        self._huber_rad = self.b.huber_px * pixel_angle(camera)
 
     # -- storage --------------------------------------------------------------------------
 
@@ -168,6 +175,7 @@ class StraightVO:
             R, c = (np.eye(3), np.zeros(3)) if k == 0 else (self.R[-1].copy(), self.c[-1].copy())
             self.sections.append(SectionReport(len(self.sections), k, k, "unit", kind=kind))
             self._solved_until, self._metric = -1, False
+            self._wall, self._fresh = None, []
             self._first_tid = int(tids.min()) if len(tids) else len(self._has)
             self._chain_first = k
         else:
@@ -175,10 +183,12 @@ class StraightVO:
                 self._close_section()
                 self.sections.append(SectionReport(len(self.sections), k, k, self.section.scale, kind=kind,
                                                    linked=True))
+                self._wall, self._fresh = None, []
             s = self._relative_scale(kf)
             Rp, cp = self.R[-1], self.c[-1]
             R = Rp @ kf.R.T
             c = cp - R @ (kf.t * s)
+            R, c = self._resect(kf, R, c)
         self.keyframes.append(kf)
         self.R.append(R)
         self.c.append(c)
@@ -190,7 +200,7 @@ class StraightVO:
             self._triangulate(kf)
         self._t_rel += time.perf_counter() - t0
         n = k - self.section.first + 1
-        if n == self.s.first_window or (n > self.s.first_window and n % self.b.step == 0):
+        if n == self.s.first_window or (n > self.s.first_window and n % self.b.step == 0) or self._drifted():
             self._window()
 
     def _relative_scale(self, kf: Keyframe) -> float:
@@ -229,6 +239,21 @@ class StraightVO:
             return float(last_step)
         return _weighted_median(depth[use] / lam_i[use], parallax[use] ** 2)
 
+    def _resect(self, kf: Keyframe, R: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The chained pose refined against the scene points the keyframe sees (`resection`), when
+        there are enough of them."""
+        if self.s.resection_min_points is None:
+            return R, c
+        rows = np.flatnonzero(kf.inliers)
+        tid = kf.track_ids[rows]
+        ok = self._has[tid] & (tid >= self._first_tid)
+        if ok.sum() < self.s.resection_min_points:
+            return R, c
+        res = resect(R, c, self._X[tid[ok]], kf.bearings[rows[ok]], self._huber_rad)
+        if res.inliers.sum() < self.s.resection_min_points:
+            return R, c
+        return res.R, res.c
+
     def _observations(self, tids: np.ndarray, lo: int, hi: int):
         """Active observations of the sorted tracks `tids` in keyframes lo..hi:
         (keyframe, position in tids, world ray direction)."""
@@ -254,6 +279,27 @@ class StraightVO:
         good = tri.valid & (tri.max_error_deg <= self.s.max_ray_error_deg)
         self._X[tids[good]] = tri.points[good]
         self._has[tids[good]] = True
+        self._fresh.append(tids[good])
+
+    def _drifted(self) -> bool:
+        """Whether the points triangulated since the last window solve have left its wall by more than
+        `scale_drift` in radius: the chained scale has slipped, and a window should solve now, while the
+        slip is small enough for its cylinder fit to keep those points."""
+        if (self._wall is None or self.s.scale_drift is None or self.section.kind != "straight"
+                or len(self._fresh) < self.s.min_window_keyframes):
+            return False
+        # the newest keyframes' points, enough of them for a median: the slip shows there first
+        recent, count = [], 0
+        for tids in reversed(self._fresh):
+            tids = tids[self._has[tids]]
+            recent.append(tids)
+            count += len(tids)
+            if count >= self.s.min_window_points:
+                break
+        if count < self.s.min_window_points:
+            return False
+        ratio = 1.0 + float(np.median(self._wall.distance(self._X[np.concatenate(recent)]))) / self.radius
+        return abs(ratio - 1.0) > self.s.scale_drift
 
     # -- windows ------------------------------------------------------------------------
 
@@ -276,6 +322,42 @@ class StraightVO:
             self.c[k] = o + f * (self.c[k] - o)
         tids = self._section_points()
         self._X[tids] = o + f * (self._X[tids] - o)
+
+    def _rescale_tail(self, uniq: np.ndarray, first: int, last: int, R0: np.ndarray, c0: np.ndarray) -> float:
+        """Scale the keyframes no window has solved yet, and the points they triangulated, about the last
+        solved camera so that those points meet the wall of the solved part; returns the factor.
+
+        Between windows the relative scale is chained from step to step; a camera looking along the pipe
+        can let it slip by tenths over a window's 50 keyframes (cctv-loop: 0.6). Its points then lie well
+        inside the wall, the window's cylinder fit takes them for outliers, and the solve keeps the slip.
+        The first window rescales a whole section by its free radius for the same reason."""
+        held_until = self._solved_until
+        if not first <= held_until < last:
+            return 1.0
+        tail = self._first_kf[uniq] > held_until
+        if tail.sum() < self.s.min_window_points or (~tail).sum() < self.s.min_window_points:
+            return 1.0
+        try:
+            fit = fit_cylinder(self._X[uniq[~tail]], self.radius, reference=(R0, c0),
+                               direction=self.c[held_until] - c0, huber=self.b.huber_m)
+        except (ValueError, np.linalg.LinAlgError):
+            return 1.0
+        o = self.c[held_until].copy()
+        X = self._X[uniq[tail]] - o
+
+        def misfit(f: float) -> float:
+            return float(np.median(np.abs(fit.cylinder.distance(o + f * X))))
+
+        best = minimize_scalar(misfit, bounds=(0.25, 4.0), method="bounded", options={"xatol": 1e-4})
+        f = float(best.x)
+        if not misfit(f) < misfit(1.0):
+            return 1.0
+        for k in range(held_until + 1, last + 1):
+            self.c[k] = o + f * (self.c[k] - o)
+        tids = self._section_points()
+        later = tids[self._first_kf[tids] > held_until]
+        self._X[later] = o + f * (self._X[later] - o)
+        return f
 
     def _solve_window(self) -> None:
         sec = self.section
@@ -310,7 +392,10 @@ class StraightVO:
             direction = R[0][:, 2]
         rescale = 1.0
         huber = self.b.huber_m
-        if not self._metric:
+        if self._metric:
+            rescale = self._rescale_tail(uniq, first, last, R[0], c[0])
+            c = np.stack(self.c[first:last + 1])
+        else:
             # Unknown units: put the Huber threshold at the same fraction of the (rough) radius.
             u = direction / np.linalg.norm(direction)
             v = self._X[uniq] - c[0]
@@ -351,6 +436,13 @@ class StraightVO:
         for k, r in zip(ks[out], rows[out]):
             self.active[k][r] = False
         after = np.mean(np.linalg.norm(np.diff(res.poses[:, :3, 3], axis=0), axis=1))
+        try:
+            self._wall = fit_cylinder(res.points[good], self.radius, reference=(R[0], res.poses[0, :3, 3]),
+                                      direction=res.poses[-1, :3, 3] - res.poses[0, :3, 3],
+                                      huber=self.b.huber_m).cylinder
+        except (ValueError, np.linalg.LinAlgError):
+            self._wall = None
+        self._fresh = []
         self._solved_until = last
         self._metric = True
         sec.scale = "cylinder"

@@ -75,6 +75,24 @@ class CameraModel(ABC):
     def max_theta_deg(self) -> float:
         return float(np.degrees(self.max_theta))
 
+    def view_colatitudes(self) -> tuple[float, float]:
+        """(inscribed, widest), radians: the largest colatitude the image shows in every direction
+        around the optical axis, and the largest it shows in any direction (the image corners of a
+        perspective camera, the rim of a fisheye's circle). Stages that work in bands of colatitude
+        take their limits from these rather than from one lens."""
+        key = (self.width, self.height, tuple(self.params.tolist()), self.max_theta)
+        if getattr(self, "_view_key", None) != key:
+            theta = np.linspace(0.0, self.max_theta, int(np.ceil(np.degrees(self.max_theta) * 10)) + 1)
+            phi = np.linspace(0.0, 2 * np.pi, 360, endpoint=False)
+            rays = bearings_from_angles(*np.broadcast_arrays(theta[None, :], phi[:, None]))
+            _, valid = self.project(rays)
+            valid[:, 0] = True
+            # the field of view in one direction ends at its first ray outside the image
+            last = np.where(valid.all(axis=1), len(theta) - 1, np.argmin(valid, axis=1) - 1)
+            reach = theta[last]
+            self._view_key, self._view = key, (float(reach.min()), float(reach.max()))
+        return self._view
+
     def param_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in zip(self.param_names, self.params)}
 

@@ -112,10 +112,18 @@ class AppearanceMap:
         raise KeyError(name)
 
 
-def _check_settings(s: AppearanceSettings) -> None:
-    if not s.min_theta_deg < s.max_theta_deg:
-        raise PipemapError(f"min_theta_deg ({s.min_theta_deg}) must be below max_theta_deg ({s.max_theta_deg})",
-                           key="appearance")
+def colatitude_band(settings: AppearanceSettings, camera) -> tuple[float, float]:
+    """(lowest, highest) colatitude in degrees of the pixels that are sampled. Unset limits follow the
+    camera's view: up to 90 deg or the widest colatitude its image holds (the wall nearest the camera,
+    seen at its finest), and down from there to 5/9 of it (the paper's 50..90 deg band on its 190 deg
+    lens; 32..58 deg on a 100 deg perspective camera)."""
+    hi = settings.max_theta_deg
+    if hi is None:
+        hi = min(90.0, math.degrees(camera.view_colatitudes()[1]))
+    lo = settings.min_theta_deg if settings.min_theta_deg is not None else hi * 5.0 / 9.0
+    if not lo < hi:
+        raise PipemapError(f"min_theta_deg ({lo:g}) must be below max_theta_deg ({hi:g})", key="appearance")
+    return float(lo), float(hi)
 
 
 def build_appearance(dataset: Dataset, keyframe_indices, poses_T_wc, pieces: list[WallPiece],
@@ -125,7 +133,7 @@ def build_appearance(dataset: Dataset, keyframe_indices, poses_T_wc, pieces: lis
     `dataset`) at the poses `poses_T_wc` ((K, 4, 4) or an (R, t) pair, same order). Each keyframe
     image is read once; progress(done, total) after each."""
     settings = settings or AppearanceSettings()
-    _check_settings(settings)
+    colatitude_band(settings, dataset.camera)
     start = time.perf_counter()
     idx = np.asarray(keyframe_indices, dtype=np.int64).reshape(-1)
     R, t = as_rt(poses_T_wc)
@@ -178,8 +186,8 @@ class _KeyframeSampler:
     def __init__(self, camera, pieces: list[WallPiece], settings: AppearanceSettings):
         self.camera = camera
         self.pieces = pieces
-        self.theta_lo = math.radians(settings.min_theta_deg)
-        self.theta_hi = math.radians(settings.max_theta_deg)
+        lo, hi = colatitude_band(settings, camera)
+        self.theta_lo, self.theta_hi = math.radians(lo), math.radians(hi)
         self.taper = math.radians(settings.edge_taper_deg)
         self.spacing = settings.spacing_m
         r_max = max((p.radius for p in pieces), default=0.0)
@@ -314,11 +322,12 @@ def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_w
         "appearance_points": int(len(points)),
         "unrolled_images": [p.name for p in images],
         "keyframes": amap.keyframes,
+        "colatitude_band_deg": [round(v, 2) for v in colatitude_band(s, dataset.camera)],
         "projections": amap.projections,
         "points_per_second": round(amap.points_per_second, 1),
         "seconds": {"appearance": round(amap.seconds, 3), "appearance_write": round(time.perf_counter() - t0, 3)},
     }
 
 
-__all__ = ["PieceMap", "AppearanceMap", "build_appearance", "bilinear", "write_appearance_ply", "read_appearance_ply",
+__all__ = ["PieceMap", "AppearanceMap", "build_appearance", "colatitude_band", "bilinear", "write_appearance_ply", "read_appearance_ply",
            "write_maps", "write_unrolled"]
