@@ -346,6 +346,8 @@ def run_command(
             sparse = run_sparse(dataset, out, settings, progress=progress)
         console.print(f"{sparse.frames} frames, {len(sparse.indices)} keyframes ({method}), camera offset from the axis "
                       f"C_X {sparse.offset[0] * 1e3:.2f} mm, C_Y {sparse.offset[1] * 1e3:.2f} mm -> {out}")
+        if sparse.mount is not None:
+            console.print(sparse.mount.line(), markup=False)
         return
     if method not in ("network", "fisheye"):
         raise PipemapError(f"unknown method {method!r} (expected auto, network, {', '.join(DENSE_METHODS)}, "

@@ -37,11 +37,11 @@ class FrontendSettings(_Section):
     zncc_min: float = Field(0.8, gt=-1, le=1, description="minimum ZNCC score of a guided match")
     keyframe_min_flow_px: float = Field(10.0, ge=0, description="new keyframe when median sparse flow exceeds this")
     keyframe_min_tracked: float = Field(
-        0.7, ge=0, le=1, description="... or inlier matches fall below this fraction of the most any frame had since "
+        0.8, ge=0, le=1, description="... or inlier matches fall below this fraction of the most any frame had since "
         "the keyframe. A camera looking along the pipe loses its near, fast tracks first, so the median flow of the "
         "rest can shrink while the camera moves on: at 0.5 the keyframe came when the new one shared 10-20 % of its "
-        "tracks with scene points, and the scale slipped by 10 % (forward CCTV, cctv-loop); the fisheye's keyframes "
-        "come by flow before either")
+        "tracks with scene points and the scale slipped by 10 %; at 0.7 a burst of lost tracks still left too few "
+        "across one step (cctv-loop at 720x576: a side 0.9 % short); the fisheye's keyframes come by flow first")
     # What the paper leaves open: measured on renders at 640x480, also used at 1280x960.
     min_distance_px: int = Field(3, ge=1, description="non-maximum suppression radius of Harris corners")
     harris_quality: float = Field(0.001, ge=0, lt=1, description="corners weaker than this x the region's strongest are dropped")
@@ -191,19 +191,42 @@ class AppearanceSettings(_Section):
 class DenseSettings(_Section):
     """Dense straight-pipe VO (2010 report section 4)."""
 
-    scale: float = Field(0.25, gt=0, le=1, description="image reduction (the report used quarter resolution)")
+    scale: float | None = Field(None, gt=0, le=1, description="image reduction; None = the report's quarter resolution, "
+                                "or less reduced where a quarter-resolution pixel would cover more than "
+                                "wall_mm_per_px of the wall")
+    wall_mm_per_px: float = Field(1.0, gt=0, description="scale = None: the coarsest sampling of the wall (mm per "
+                                  "pixel at the principal point) the reduction may give")
     metric: Literal["sad", "ssd", "zncc"] = "zncc"
-    search_px: int = Field(16, gt=0, description="full-search range (+/- px at reduced resolution)")
+    search_px: int = Field(16, gt=0, description="full-search range to start with (+/- px at reduced resolution, "
+                           "around the shift predicted from the previous pair); doubled while the best match lies "
+                           "on its edge or correlates below search_min_zncc")
+    search_min_zncc: float = Field(0.5, ge=-1, le=1, description="full search: a best match whose ZNCC is below this "
+                                   "widens the range")
     pyramid_levels: int = Field(3, gt=0, description="hierarchical Lucas-Kanade levels")
     lk_iterations: int = Field(10, gt=0)
-    pixels_per_metre: float | None = Field(None, gt=0, description="zeta; None = from calibration, radius, offset")
-    camera_offset_m: float = Field(0.0, description="camera displacement from the pipe axis along its principal axis, "
-                                   "+ towards the viewed wall (zeta from geometry)")
+    pixels_per_metre: float | None = Field(None, gt=0, description="zeta, the reference scale (report section 3.3); "
+                                           "None = from calibration, radius and the camera's offset from the axis")
+    camera_offset_m: float | None = Field(
+        None, description="camera displacement from the pipe axis along its principal axis, + towards the viewed "
+        "wall, as measured on the robot (zeta from geometry); None = the estimated mount's offset (mount = estimate) "
+        "or on the axis (mount = square)")
+    mount: Literal["estimate", "square"] = Field(
+        "estimate", description="estimate = the camera's rotation and offset in the pipe from the sparse method's "
+        "initial batch over the first frames (straight/mount.py); each frame is turned to a virtual camera square to "
+        "the wall with image x along the pipe, and the offset sets zeta unless a reference is given; square = the "
+        "report's assumption that the camera already looks square at the wall with image x along the pipe")
+    rectify_max_angle_deg: float = Field(60.0, gt=0, lt=90, description="mount = estimate: the view turned square "
+                                         "to the wall reaches this far along the pipe from square (beyond, one pixel "
+                                         "of an oblique camera spreads over several)")
     search_y_px: int | None = Field(None, ge=0, description="full-search range across the pipe; None = search_px // 2")
     band_fraction: float = Field(0.5, gt=0, le=1, description="central fraction of the rows that is registered")
     predict: bool = Field(True, description="search around / start from the previous pair's shift (constant velocity)")
     lk_tolerance_px: float = Field(1e-3, gt=0, description="Gauss-Newton stops when the update is below this")
     gain_correct: bool = Field(True, description="divide by the dataset's gain mask when it has one (section 3.2)")
+    light_sigma_px: float | None = Field(
+        4.0, gt=0, description="without a gain mask, every rectified frame is divided by its own Gaussian blur of "
+        "this sigma (px): the LEDs' light stays put in the image while the wall moves, and holds the registration "
+        "back towards no motion; None = the frames as they are")
     stitch_min_shift_px: float = Field(50.0, ge=0, description="frames pasted into the stitched image are at least "
                                        "this far apart along the pipe (report: 50 px)")
     full_search_reference_fraction: float | None = Field(
@@ -221,6 +244,10 @@ class SparseSettings(_Section):
     sigma_w: float = Field(3.0, gt=0, description="Harris integration scale")
     sigma_d: float = Field(1.5, gt=0, description="Harris derivative scale")
     harris_k: float = Field(0.04, gt=0)
+    light_sigma_px: float | None = Field(
+        12.0, gt=0, description="without a gain mask, keypoints and descriptors are taken on the image divided by "
+        "its own Gaussian blur of this sigma, which removes the LEDs' fall-off that moves with the camera and drags "
+        "Harris corners against the motion (a scale bias of 0.1-0.2 %); None = the image as it is")
     ambiguity_ratio: float = Field(0.8, gt=0, le=1, description="SIFT ambiguity ratio with mutual check")
     keyframe_min_matches: int = Field(100, gt=0)
     keyframe_max_flow_px: float = Field(20.0, gt=0)
@@ -236,22 +263,32 @@ class SparseSettings(_Section):
                                     "(that fraction is the scale error it brings)")
     offset_measured: bool = Field(False, description="initial_offset_m was measured on the robot (as in the report): "
                                   "kept when the batch cannot determine the offset (narrow lens, large pipe)")
-    offset_long_keyframes: int = Field(100, gt=1, description="where the bundle batch leaves the offset "
-                                       "undetermined and none was measured: eqs. 45-49 again over this many "
-                                       "keyframes, one offset and rotation for all (<= offset_batch_keyframes: off)")
+    offset_long_keyframes: int = Field(100, gt=1, description="the bundle batch again over this many keyframes, "
+                                       "kept where it determines the offset better; where neither does and none "
+                                       "was measured, eqs. 45-49 over them (<= offset_batch_keyframes: off)")
     offset_long_lag: int = Field(10, gt=0, description="long batch: pairs of keyframes at most this far apart")
+    offset_long_step: int = Field(3, gt=0, description="long batch: the bundle batch takes every this-th keyframe (the "
+                                  "span of wall seen fixes the offset, not the number of keyframes); eqs. 45-49 "
+                                  "over all of them only where that leaves the offset undetermined")
     refine_every: int = Field(50, gt=0, description="N: 6-DOF sliding refinement over the previous 2N")
     refine_passes: int = Field(2, gt=0)
-    refine_dof: Literal["auto", "six", "crawler"] = Field(
-        "auto", description="sliding refinement: six = every pose in all six degrees of freedom (the report); "
-        "crawler = only the robot's roll about the axis and its travel along it, its camera mount held as the "
-        "offset batch left it (sparse_motion.refine_crawler); auto = crawler where the batch found the images "
-        "cannot determine the camera's offset (narrow lens, large pipe: they cannot fix pitch or the distance to "
-        "the wall either), else six")
+    refine_dof: Literal["auto", "six", "crawler", "bundle"] = Field(
+        "auto", description="sliding refinement: six = every pose in all six degrees of freedom against S(g), one "
+        "after the other (the report); bundle = the 2N keyframes (every offset_long_step-th) together with their "
+        "points in one bundle adjustment on the wall (sparse_batch.bundle_window); crawler = only the robot's roll "
+        "about the axis and its travel along it, its camera mount held as the offset batch left it "
+        "(sparse_motion.refine_crawler); auto = crawler where the batch found the images cannot determine the "
+        "camera's offset (narrow lens, large pipe: they cannot fix pitch or the distance to the wall either), else "
+        "bundle")
     # What the report leaves open.
     gain_correct: bool = Field(True, description="divide by the dataset's gain mask when it has one (section 3.2)")
     initial_offset_m: tuple[float, float] = Field(
         (0.0, 0.0), description="start of the C_X, C_Y batch (the report measured it by hand; 0 = on the axis)")
+    initial_mount: Literal["motion", "square"] = Field(
+        "motion", description="start of the bundle batch: square = the report's R0 (optical axis square to the wall, "
+        "image x along it); motion = also from the camera turned to travel along the pipe as the five-point pose "
+        "between the batch's first and last keyframes says it does, keeping the better fit (any mount, square to "
+        "the wall down to looking well ahead)")
     ransac_threshold_px: float = Field(1.0, gt=0, description="five-point RANSAC inlier threshold (px at the centre)")
     min_inliers: int = Field(15, gt=5, description="fewer RANSAC inliers: the keyframe pair keeps no matches")
     outlier_mad_k: float = Field(3.0, gt=0, description="an estimate farther than k x 1.4826 x the median distance "

@@ -46,3 +46,12 @@ def sixteen_inch_sparse(tmp_path_factory):
     ds = simulate("paper-straight-16in", root / "sixteen", width=320, height=240, frames=80, seed=1, route="forward",
                   spacing_m=0.002, workers=1)
     return _with_gain_mask(ds, card)
+
+
+@pytest.fixture(scope="session")
+def oblique_wall(tmp_path_factory):
+    """200 frames (1 m, forward) at 480x360 of the wall camera turned to 50 deg from the pipe axis: 3 cm beside and
+    4 cm below the axis of a 387.56 mm pipe, no gain mask, the robot wobbling up to 1 deg and 3 mm."""
+    root = tmp_path_factory.mktemp("oblique")
+    return simulate("wall-camera-50", root / "w50", width=480, height=360, frames=200, seed=1, route="forward",
+                    workers=2)

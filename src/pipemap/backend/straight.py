@@ -133,6 +133,7 @@ class StraightVO:
         self._min_cos = -1.0 if m is None else float(np.cos(np.radians(m)))
         self._t_rel = 0.0
         self._t_win = 0.0
+        self._resected = False  # the newest keyframe's pose was refined against its scene points (or resection is off)
         self._wall = None  # the current section's wall as its last window solve left it
         self._fresh: list[np.ndarray] = []  # points triangulated since then
         self._huber_rad = self.b.huber_px * pixel_angle(camera)
@@ -206,15 +207,7 @@ class StraightVO:
     def _relative_scale(self, kf: Keyframe) -> float:
         """Length of the new step, from tracks that already have 3D points (see the module docstring)."""
         prev = self.keyframes[-1]
-        last_step = 1.0
-        if len(self.c) - 1 > self._chain_first:
-            # Without enough points the robot is taken to keep its speed: keyframes come at uneven
-            # intervals (a forward view loses its near tracks in bursts), so the last step's length
-            # is scaled by the time this step took.
-            last_step = float(np.linalg.norm(self.c[-1] - self.c[-2]))
-            dt_last = prev.timestamp - self.keyframes[-2].timestamp
-            if dt_last > 0 and kf.timestamp > prev.timestamp:
-                last_step *= (kf.timestamp - prev.timestamp) / dt_last
+        last_step = self._speed_step(kf)
         cur = np.flatnonzero(kf.inliers)
         _, ip, ic = np.intersect1d(prev.track_ids, kf.track_ids[cur], assume_unique=True, return_indices=True)
         ic = cur[ic]
@@ -242,7 +235,8 @@ class StraightVO:
     def _resect(self, kf: Keyframe, R: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The chained pose refined against the scene points the keyframe sees (`resection`), when
         there are enough of them."""
-        if self.s.resection_min_points is None:
+        self._resected = self.s.resection_min_points is None  # without resection no keyframe is better held
+        if self._resected:
             return R, c
         rows = np.flatnonzero(kf.inliers)
         tid = kf.track_ids[rows]
@@ -252,7 +246,26 @@ class StraightVO:
         res = resect(R, c, self._X[tid[ok]], kf.bearings[rows[ok]], self._huber_rad)
         if res.inliers.sum() < self.s.resection_min_points:
             return R, c
+        self._resected = True
         return res.R, res.c
+
+    def _speed_step(self, kf: Keyframe, steps: int = 5) -> float:
+        """The new step's length if the robot kept its recent speed: the median speed of the chain's last
+        few steps times the time this one took. Keyframes come at uneven intervals (a forward view loses
+        its near tracks in bursts), and one step can be off (a window solved at a keyframe that saw few
+        points), so neither the last step's length nor its speed alone serves."""
+        k = len(self.c) - 1
+        lo = max(self._chain_first, k - steps)
+        if k <= lo:
+            return 1.0
+        c = np.stack(self.c[lo:k + 1])
+        t = np.array([f.timestamp for f in self.keyframes[lo:k + 1]])
+        length = np.linalg.norm(np.diff(c, axis=0), axis=1)
+        dt = np.diff(t)
+        dt_now = kf.timestamp - t[-1]
+        if not (dt > 0).all() or not dt_now > 0:
+            return float(length[-1])
+        return float(np.median(length / dt) * dt_now)
 
     def _observations(self, tids: np.ndarray, lo: int, hi: int):
         """Active observations of the sorted tracks `tids` in keyframes lo..hi:
@@ -285,8 +298,10 @@ class StraightVO:
         """Whether the points triangulated since the last window solve have left its wall by more than
         `scale_drift` in radius: the chained scale has slipped, and a window should solve now, while the
         slip is small enough for its cylinder fit to keep those points."""
+        # A keyframe that sees few scene points (its pose chained, not resected) would end the window
+        # loosely held: wait for one that the scene fixes.
         if (self._wall is None or self.s.scale_drift is None or self.section.kind != "straight"
-                or len(self._fresh) < self.s.min_window_keyframes):
+                or len(self._fresh) < self.s.min_window_keyframes or not self._resected):
             return False
         # the newest keyframes' points, enough of them for a median: the slip shows there first
         recent, count = [], 0

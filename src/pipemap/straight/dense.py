@@ -2,10 +2,13 @@
 
 Per adjacent pair of reduced, undistorted frames the image translation is registered (full
 search, hierarchical Lucas-Kanade, or both), converted to metres with zeta pixels per metre
-(eq. 19) and integrated. World frame = the first camera's frame, which for a camera looking
-perpendicular at the wall with image x along the pipe is a pipe frame: x along the pipe (h), y
-across it, z towards the wall (up for the report's robots). Rotation is assumed constant (R = I,
-the report's model); only the camera centre moves.
+(eq. 19) and integrated. The translation model needs a camera square to the wall with image x
+along the pipe; unless told it is (dense.mount = square), the camera's mount is estimated first by
+the sparse method's initial batch (mount.py) and every frame is turned to a virtual camera in that
+pose (undistort.py), whose offset from the axis also gives zeta where no reference is given.
+World frame = the first frame's virtual camera, a pipe frame: x along the pipe (h), y across it,
+z towards the wall it looks at. Rotation is assumed constant (the report's model; every pose
+carries the mount); only the camera centre moves.
 """
 
 from __future__ import annotations
@@ -23,9 +26,12 @@ from pipemap.config import DenseSettings, Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
-from pipemap.straight.registration import Shift, full_search, hybrid, lucas_kanade
+from pipemap.straight.mount import Mount, estimate_mount
+from pipemap.straight.registration import Shift, adaptive_full_search, hybrid, lucas_kanade
 from pipemap.straight.scale import pixels_per_metre
-from pipemap.straight.undistort import Rectifier
+from pipemap.straight.sparse_features import flatten_light
+from pipemap.straight.sparse_geometry import wall_distance
+from pipemap.straight.undistort import QUARTER, Rectifier, reduction_for_wall
 from pipemap.straight.unroll import to_png
 from pipemap.trajectory import Trajectory, write_tum
 
@@ -44,6 +50,7 @@ class DenseResult:
     size: tuple[int, int]  # rectified (width, height)
     rows: tuple[int, int]
     seconds: dict = field(default_factory=dict)
+    mount: Mount | None = None
 
 
 def band_rows(height: int, fraction: float) -> tuple[int, int]:
@@ -56,11 +63,12 @@ def register_pair(I0: np.ndarray, I1: np.ndarray, method: str, dense: DenseSetti
     """The shift of one pair of rectified images by the chosen method."""
     search = (dense.search_px, dense.search_px // 2 if dense.search_y_px is None else dense.search_y_px)
     if method == "dense-full-search":
-        return full_search(I0, I1, search, prior, dense.metric, rows)
+        return adaptive_full_search(I0, I1, search, prior, dense.metric, rows, dense.search_min_zncc)
     if method == "dense-lk":
         return lucas_kanade(I0, I1, prior, dense.pyramid_levels, dense.lk_iterations, rows, dense.lk_tolerance_px)
     if method == "dense-hybrid":
-        return hybrid(I0, I1, search, prior, dense.metric, dense.lk_iterations, rows, dense.lk_tolerance_px)
+        return hybrid(I0, I1, search, prior, dense.metric, dense.lk_iterations, rows, dense.lk_tolerance_px,
+                      dense.search_min_zncc)
     raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})", key="method")
 
 
@@ -145,10 +153,18 @@ class Stitcher:
         return canvas.astype(np.float32), -umin
 
 
-def _frames(dataset: Dataset, rect: Rectifier, counter: list, gain_correct: bool) -> Iterator[np.ndarray]:
+def _frames(dataset: Dataset, rect: Rectifier, counter: list, gain_correct: bool,
+            light_sigma_px: float | None = None, shown: list | None = None) -> Iterator[np.ndarray]:
+    """The rectified frames to register; with light_sigma_px, each divided by its own blur
+    (sparse_features.flatten_light): without a gain mask the LEDs' light is a pattern fixed in the image while
+    the wall moves through it, and it holds the registration back towards no motion (5.5 % short at 50 deg).
+    `shown` gets the frame as it looks, for the stitched image."""
     for frame in dataset.frames(gain_correct=gain_correct):
         counter.append(frame.index)
-        yield rect(frame.image)
+        img = rect(frame.image)
+        if shown is not None:
+            shown[:] = [img]
+        yield img if light_sigma_px is None else flatten_light(img, light_sigma_px)
 
 
 def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: str = "dense-hybrid",
@@ -161,40 +177,49 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
     if method not in DENSE_METHODS:
         raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})", key="method")
     dataset = load_dataset(dataset_path)
-    rect = Rectifier(dataset.camera, dense.scale, dataset.yaml_path)
+    Rectifier(dataset.camera, dense.scale or QUARTER, dataset.yaml_path)  # a fisheye or a bad scale: refused at once
+    t_mount = time.perf_counter()
+    mount = None
+    if dense.mount == "estimate":
+        mount = estimate_mount(dataset, settings, dense.gain_correct)
+    t_mount = time.perf_counter() - t_mount
+    # an offset the images leave undetermined says the rotation is as loose: the report's square camera then
+    turn = None if mount is None or not mount.determined else mount.rotation
+    reduction = dense.scale or reduction_for_wall(dataset.camera, _wall_distance(dense, mount, dataset.radius_m),
+                                                  dense.wall_mm_per_px)
+    rect = Rectifier(dataset.camera, reduction, dataset.yaml_path, turn, dense.rectify_max_angle_deg)
     w, h = rect.size
     rows = band_rows(h, dense.band_fraction)
-    if dense.pixels_per_metre is not None:
-        zeta, source = float(dense.pixels_per_metre), "settings dense.pixels_per_metre"
-    else:
-        zeta = pixels_per_metre(rect.focal_px, rect.K[1, 2], dataset.radius_m, dense.camera_offset_m, rows)
-        source = (f"geometry: rectified focal {rect.focal_px:.3f} px, radius {dataset.radius_m} m, "
-                  f"camera offset {dense.camera_offset_m} m, rows {rows[0]}..{rows[1]}")
+    zeta, scale = _scale(dense, rect, dataset, mount, rows)
+    source = scale["text"]
     total = len(dataset)
     stitch = Stitcher(rect.valid, dense.stitch_min_shift_px)
     indices: list[int] = []
     running = {"c": np.zeros(2)}
+    shown: list[np.ndarray] = []
 
     def on_frame(k: int, img: np.ndarray, t: np.ndarray) -> None:
         running["c"] = running["c"] + t
-        stitch.add(-running["c"], img)
+        stitch.add(-running["c"], shown[0])
         if progress is not None:
             progress(k + 1, total)
 
     start = time.perf_counter()
     with result_folder(Path(out_dir)) as tmp:
-        frames = _frames(dataset, rect, indices, dense.gain_correct)
+        corrected = dense.gain_correct and dataset.has_gain_mask
+        frames = _frames(dataset, rect, indices, dense.gain_correct, None if corrected else dense.light_sigma_px,
+                         shown)
         shifts, scores = estimate_shifts(frames, method, dense, rows, on_frame)
         t_reg = time.perf_counter() - start
         if len(indices) == 0:
             raise PipemapError("no images in the dataset", dataset.root)
         pos = integrate(shifts, zeta)
         idx = np.array(indices, int)
-        traj = Trajectory(idx / dataset.fps, pos, np.tile(np.eye(3), (len(idx), 1, 1)))
+        traj = Trajectory(idx / dataset.fps, pos, np.tile(rect.rotation, (len(idx), 1, 1)))  # camera -> virtual axes
         t1 = time.perf_counter()
         write_tum(tmp / "trajectory.tum", traj, header=(
-            f"pipemap dense VO ({method}): every frame's T_wc in metres; world = first camera's frame "
-            "(x along the pipe, z towards the viewed wall)"))
+            f"pipemap dense VO ({method}): every frame's T_wc in metres; world = the first frame's camera turned "
+            "square to the wall (x along the pipe, z towards the viewed wall)"))
         lines = ["index,keyframe,label"] + [f"{i},1,straight" for i in idx]
         atomic_write_text(tmp / "frames.csv", "\n".join(lines) + "\n")
         (tmp / "unrolled").mkdir()
@@ -218,7 +243,7 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
         atomic_write_text(tmp / "unrolled" / "dense_000.json", json.dumps(sidecar, indent=2) + "\n")
         from pipemap import __version__
 
-        seconds = {"registration": t_reg, "write": time.perf_counter() - t1}
+        seconds = {"mount": t_mount, "registration": t_reg, "write": time.perf_counter() - t1}
         seconds["total"] = time.perf_counter() - start
         run = {
             "version": __version__,
@@ -229,7 +254,16 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
             "pixels_per_metre": zeta,
             "gain_corrected": bool(dense.gain_correct and dataset.has_gain_mask),
             "pixels_per_metre_source": source,
+            "scale_source": scale["source"],
+            "scale": scale,
+            "mount": None if mount is None else mount.to_dict(),
+            "rectified_by": ("the estimated mount" if turn is not None else
+                             "none: the camera taken as square to the wall with image x along the pipe" +
+                             ("" if mount is None else " (the images did not determine its mount)")),
+            "reduction": reduction,
             "rectified_size": [w, h],
+            "rectified_intrinsics": rect.K.tolist(),
+            "rectified_rotation": rect.rotation.tolist(),
             "registered_rows": list(rows),
             "pipe_radius_m": dataset.radius_m,
             "frames": len(idx),
@@ -239,4 +273,41 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
             "seconds": {k: round(v, 3) for k, v in seconds.items()},
         }
         atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
-    return DenseResult(method, idx, shifts, scores, zeta, source, traj, (w, h), rows, seconds)
+    return DenseResult(method, idx, shifts, scores, zeta, source, traj, (w, h), rows, seconds, mount)
+
+
+def _wall_distance(dense: DenseSettings, mount: Mount | None, radius: float) -> float:
+    """The distance to the wall along the optical axis: from the offset given, the mount the images determined,
+    or the axis."""
+    if dense.camera_offset_m is not None:
+        return radius - float(dense.camera_offset_m)
+    if mount is not None and mount.determined:
+        return wall_distance(mount.rotation, np.r_[mount.offset_m, 0.0], radius)
+    return radius
+
+
+def _scale(dense: DenseSettings, rect: Rectifier, dataset: Dataset, mount: Mount | None, rows) -> tuple[float, dict]:
+    """zeta and where it came from: the reference (dense.pixels_per_metre), the offset measured on the robot
+    (dense.camera_offset_m), the estimated mount's offset, or the axis (the report's square camera, no offset)."""
+    if dense.pixels_per_metre is not None:
+        zeta = float(dense.pixels_per_metre)
+        return zeta, {"source": "reference", "text": "reference dense.pixels_per_metre"}
+    if dense.camera_offset_m is not None:
+        offset, side, source = float(dense.camera_offset_m), 0.0, "given offset"
+        text = f"given offset dense.camera_offset_m {offset * 1e3:.2f} mm"
+    elif mount is not None:
+        if not mount.determined:
+            raise PipemapError(
+                "the images do not fix the camera's offset from the pipe axis well enough to scale the dense methods "
+                "(its standard deviation exceeds sparse.offset_max_sigma of the distance to the wall: a narrow lens "
+                "in a large pipe sees the wall nearly flat); give dense.camera_offset_m or dense.pixels_per_metre",
+                dataset.yaml_path, "dense.camera_offset_m")
+        side, offset, source = float(mount.offset_m[0]), float(mount.offset_m[1]), "estimated mount"
+        text = f"estimated mount: C_X {side * 1e3:.2f} mm, C_Y {offset * 1e3:.2f} mm"
+    else:
+        offset, side, source = 0.0, 0.0, "axis"
+        text = "camera assumed on the pipe axis"
+    zeta = pixels_per_metre(rect.focal_px, rect.K[1, 2], dataset.radius_m, offset, rows, side)
+    return zeta, {"source": source, "offset_m": offset, "side_m": side,
+                  "text": f"{text} (rectified focal {rect.focal_px:.3f} px, radius {dataset.radius_m} m, rows "
+                          f"{rows[0]}..{rows[1]})"}

@@ -5,7 +5,10 @@ Convention: `t = (tx, ty)` is the displacement of the image content from `I0` to
 row, the rest of the width that the shift leaves inside both images).
 
 - `full_search`: every integer shift within `prior +- search` (Algorithm 1), by SAD, SSD or
-  ZNCC (eqs. 13-15), with OpenCV's matchTemplate for SSD/ZNCC and a windowed view for SAD.
+  ZNCC (eqs. 13-15), with OpenCV's matchTemplate for SSD/ZNCC and a windowed view for SAD. The
+  template is the part of the band that every shift of the range keeps inside `I1`.
+- `adaptive_full_search`: the range around the predicted shift doubles while the best match lies
+  on its edge or correlates poorly, so no fixed range has to suit every run.
 - `lucas_kanade`: hierarchical Gauss-Newton on the SSD (eqs. 21-27, after Bergen et al.) over
   a cv2.pyrDown pyramid, inverse-compositional (template gradients and Hessian fixed per level).
 - `hybrid`: full search, then Lucas-Kanade at the finest level only (section 4.2.3).
@@ -45,6 +48,16 @@ def _band(shape, rows, margin_x: int, margin_y: int):
     return y0, y1, x0, x1
 
 
+def _search_box(shape, rows, lo, hi):
+    """Template box (y0, y1, x0, x1) of I0 (within the row band) that every shift from lo to hi (x, y) keeps inside
+    an image of the same shape; None when that leaves less than 8 x 8 pixels."""
+    h, w = shape
+    y0, y1 = (0, h) if rows is None else (int(rows[0]), int(rows[1]))
+    x0, x1 = max(0, -lo[0]), min(w, w - hi[0])
+    y0, y1 = max(y0, -lo[1]), min(y1, h - hi[1])
+    return None if y1 - y0 < 8 or x1 - x0 < 8 else (y0, y1, x0, x1)
+
+
 def full_search(I0: np.ndarray, I1: np.ndarray, search=(16, 8), prior=(0, 0), metric: Metric = "zncc",
                 rows=None) -> Shift:
     """Integer shift minimising the metric over `prior +- search` (x, y)."""
@@ -52,7 +65,12 @@ def full_search(I0: np.ndarray, I1: np.ndarray, search=(16, 8), prior=(0, 0), me
     I1 = np.asarray(I1, np.float32)
     sx, sy = int(search[0]), int(search[1])
     px, py = int(round(prior[0])), int(round(prior[1]))
-    y0, y1, x0, x1 = _band(I0.shape, rows, sx + abs(px), sy + abs(py))
+    box = _search_box(I0.shape, rows, (px - sx, py - sy), (px + sx, py + sy))
+    if box is None:
+        h, w = I0.shape
+        raise PipemapError(f"a shift of {px}+-{sx} x {py}+-{sy} px leaves no template in the {w}x{h} rectified "
+                           "image; lower dense.search_px or raise dense.scale", key="dense.search_px")
+    y0, y1, x0, x1 = box
     T = I0[y0:y1, x0:x1]
     S = I1[y0 + py - sy:y1 + py + sy, x0 + px - sx:x1 + px + sx]
     if metric == "zncc":
@@ -65,6 +83,65 @@ def full_search(I0: np.ndarray, I1: np.ndarray, search=(16, 8), prior=(0, 0), me
         raise ValueError(f"unknown metric {metric!r} (expected sad, ssd or zncc)")
     j, i = np.unravel_index(int(np.argmin(R)), R.shape)
     return Shift(np.array([px + i - sx, py + j - sy], float), float(R[j, i]))
+
+
+def adaptive_full_search(I0: np.ndarray, I1: np.ndarray, search=(16, 8), prior=(0, 0), metric: Metric = "zncc",
+                         rows=None, min_zncc: float = 0.5, min_template: float = 1 / 3) -> Shift:
+    """`full_search` around the predicted shift `prior`, with the range `search` to start with. The range doubles
+    while the best match lies on its edge (the motion may lie beyond it) or its ZNCC is below min_zncc (it may be
+    a false match), as far as the template keeps min_template of the band's width and height; a best match still
+    on the edge of the widest range becomes the centre of a new search (the prediction was far off)."""
+    I0 = np.asarray(I0, np.float32)
+    I1 = np.asarray(I1, np.float32)
+    h, w = I0.shape
+    y0, y1 = (0, h) if rows is None else (int(rows[0]), int(rows[1]))
+    need = np.array([min_template * w, min_template * (y1 - y0)])
+    start = np.maximum(np.asarray(search, int), (1, 0))
+    p, s = np.round(np.asarray(prior, float)).astype(int), start.copy()
+
+    def fits(p, s):
+        box = _search_box(I0.shape, rows, p - s, p + s)
+        return box is not None and box[3] - box[2] >= need[0] and box[1] - box[0] >= need[1]
+
+    if not fits(p, s):
+        p = np.zeros(2, int)  # the prediction leaves too little overlap: start from no motion
+        if not fits(p, s):
+            return full_search(I0, I1, s, p, metric, rows)  # the clear error, or a small image searched as asked
+    best = None
+    for _ in range(4):  # recentrings
+        while True:
+            found = full_search(I0, I1, s, p, metric, rows)
+            best = found if best is None or found.score < best.score else best
+            edge = ~((np.abs(found.t - p) < s) | (s == 0))
+            box = _search_box(I0.shape, rows, p - s, p + s)
+            if not edge.any() and zncc_at(I0, I1, found.t, box) >= min_zncc:
+                return found
+            grown = s.copy()
+            for axis in (0, 1):  # the widest range up to twice the present one that keeps the template
+                while grown[axis] < 2 * s[axis] and fits(p, grown + np.eye(2, dtype=int)[axis]):
+                    grown[axis] += 1
+            if np.array_equal(grown, s):
+                break
+            s = grown
+        if not edge.any() or np.array_equal(found.t, p):
+            return best
+        p, s = found.t.astype(int), start.copy()
+        if not fits(p, s):
+            return best
+    return best
+
+
+def zncc_at(I0: np.ndarray, I1: np.ndarray, t, box) -> float:
+    """ZNCC of I0 over box (y0, y1, x0, x1) with I1 shifted by the integer shift t."""
+    y0, y1, x0, x1 = box
+    tx, ty = int(round(t[0])), int(round(t[1]))
+    A = I0[y0:y1, x0:x1].astype(np.float64)
+    B = I1[y0 + ty:y1 + ty, x0 + tx:x1 + tx].astype(np.float64)
+    if A.shape != B.shape or A.size == 0:
+        return -1.0
+    A, B = A - A.mean(), B - B.mean()
+    d = np.sqrt(np.sum(A * A) * np.sum(B * B))
+    return float(np.sum(A * B) / d) if d > 0 else -1.0
 
 
 def _sad(S: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -153,9 +230,10 @@ def lucas_kanade(I0: np.ndarray, I1: np.ndarray, init=(0.0, 0.0), levels: int = 
 
 
 def hybrid(I0: np.ndarray, I1: np.ndarray, search=(16, 8), prior=(0, 0), metric: Metric = "zncc", iterations: int = 10,
-           rows=None, tol: float = 1e-3) -> Shift:
-    """Full search for the integer shift, then LK refinement on the finest level (no pyramid)."""
-    coarse = full_search(I0, I1, search, prior, metric, rows)
+           rows=None, tol: float = 1e-3, min_zncc: float = 0.5) -> Shift:
+    """Full search for the integer shift (adaptive_full_search), then LK refinement on the finest level (no
+    pyramid)."""
+    coarse = adaptive_full_search(I0, I1, search, prior, metric, rows, min_zncc)
     fine = lucas_kanade(I0, I1, coarse.t, levels=1, iterations=iterations, rows=rows, tol=tol)
     if not np.all(np.isfinite(fine.t)) or np.abs(fine.t - coarse.t).max() > 1.0:
         return coarse  # the full search is within a pixel of the optimum: a refinement beyond that diverged

@@ -26,6 +26,7 @@ from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
+from pipemap.straight.mount import Mount
 from pipemap.straight.sparse_geometry import E_H
 from pipemap.straight.sparse_keyframes import KeyframeSelector
 from pipemap.straight.sparse_odometry import SparseOdometry
@@ -46,6 +47,7 @@ class SparseResult:
     frames: int
     unrolled: UnrolledWall | None
     seconds: dict = field(default_factory=dict)
+    mount: Mount | None = None  # the camera's mount as the initial batch found it
 
 
 def to_first_camera(R: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -86,8 +88,8 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
     total = len(dataset)
     start = time.perf_counter()
     with result_folder(Path(out_dir)) as tmp:
-        selector = KeyframeSelector(camera, sp, settings.seed)
-        odometry = SparseOdometry(camera, radius, sp)
+        selector = KeyframeSelector(camera, sp, settings.seed, not (sp.gain_correct and dataset.has_gain_mask))
+        odometry = SparseOdometry(camera, radius, sp, settings.seed)
         t_features = t_motion = 0.0
         n = 0
         for frame in dataset.frames(gain_correct=sp.gain_correct):
@@ -109,6 +111,7 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         if not odometry.keyframes:
             odometry.start(selector.first)
         odometry.finish()
+        mount = Mount.from_odometry(odometry, n)
         t_motion += time.perf_counter() - t1
         idx, R, C = odometry.poses()
         Rw, Cw = to_first_camera(R, C)
@@ -160,6 +163,7 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
                                 "source": "start" if off is None else off.used,
                                 "batch_rms_px": None if off is None else off.rms_px,
                                 "batch_observations": None if off is None else off.observations},
+            "mount": None if mount is None else mount.to_dict(),
             "pipe_axis": {"origin": axis_origin.tolist(), "direction": axis_dir.tolist(),
                           "frame": "first keyframe's camera frame"},
             "distance_along_pipe_m": float(h.max() - h.min()),
@@ -168,7 +172,7 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
             "seconds": {k: round(v, 3) for k, v in seconds.items()},
         }
         atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
-    return SparseResult(idx, R, C, offset, np.nan if off is None else off.rms_px, traj, n, wall, seconds)
+    return SparseResult(idx, R, C, offset, np.nan if off is None else off.rms_px, traj, n, wall, seconds, mount)
 
 
 def _fmt(v) -> str:

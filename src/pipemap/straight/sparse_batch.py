@@ -20,7 +20,12 @@ The axis is parameterised relative to a virtual reference camera at the first ke
 looking along the pipe (the local parameterisation is singular for an axis across the optical
 axis, which is how the report's camera looks). The result is expressed in a pipe frame whose h axis
 is the estimated axis, with h = 0 at the first keyframe and the rotation about the axis chosen so
-that the first camera looks up (+Y), the report's convention for R0 (eq. 45).
+that the first camera looks up (+Y), the report's convention for R0 (eq. 45). The camera's mount
+(mount_of: the angle of its optical axis to the pipe axis, the roll, C_X and C_Y) is reported as the
+mean over the batch's keyframes, the robot's wobble averaged, with a covariance carried from the
+axis's.
+
+The sliding refinement (5.3.3) uses the same solve over windows of keyframes (`bundle_window`).
 """
 
 from __future__ import annotations
@@ -46,6 +51,9 @@ class BatchResult:
     points: int  # wall points seen by at least two keyframes
     tilt_rad: float  # angle between the estimated axis and the start's
     offset_sigma: np.ndarray  # (2,) standard deviations of (C_X, C_Y) from the Gauss-Newton covariance
+    mount: np.ndarray  # (4,) angle and roll (rad), C_X, C_Y (m) (mount_of), mean over the batch's keyframes
+    mount_covariance: np.ndarray  # (4, 4) of `mount`
+    fit_px: float  # RMS reprojection error of all observations, each capped at 3 Huber widths (compares starts)
 
 
 def batch_observations(gids: list[np.ndarray], uvs: list[np.ndarray]):
@@ -60,17 +68,15 @@ def batch_observations(gids: list[np.ndarray], uvs: list[np.ndarray]):
     return k[keep], point, uv[keep], np.flatnonzero(keep)
 
 
-def bundle_batch(gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[np.ndarray], R: np.ndarray,
-                 C: np.ndarray, camera: CameraModel, radius: float, *, wall_sigma_m: float = 1e-4,
-                 huber_px: float = 1.0, mad_k: float = 3.0, outlier_passes: int = 3,
-                 iterations: int = 50) -> BatchResult | None:
-    """Bundle adjustment of the batch's keyframes (poses R (K, 3, 3), C (K, 3) in the pipe frame as
-    start) and wall points, with the pipe axis free relative to the first keyframe. None when the
-    batch has too few shared points to constrain its unknowns."""
+def _solve_on_wall(gids, uvs, bearings, R, C, camera, radius, held: int, wall_sigma_m: float, huber_px: float,
+                   mad_k: float, outlier_passes: int, iterations: int):
+    """The bundle adjustment on the wall shared by the batch and the windows: keyframe poses (R, C in the pipe
+    frame as start; the first `held` of them fixed), wall points and the axis relative to a virtual reference
+    camera at the first keyframe's centre looking along the start's axis. (problem, result, points) or None."""
     K = len(gids)
     cam, point, pixels, rows = batch_observations(gids, uvs)
     P = int(point.max()) + 1 if len(point) else 0
-    if P == 0 or 2 * len(cam) < 6 * (K - 1) + 4 + 3 * P:
+    if P == 0 or 2 * len(cam) < 6 * (K - held) + 4 + 3 * P:
         return None
     # start the points at the mean of their wall estimates from the starting poses
     X_all = np.concatenate([wall_points(R[i], C[i], b, radius)[0] for i, b in enumerate(bearings)])[rows]
@@ -81,22 +87,121 @@ def bundle_batch(gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[n
     if np.any(n == 0):
         return None
     X0 = sums / n[:, None]
-    # the virtual reference (index K): the first keyframe's centre, camera z along the start's axis
     Rp = np.concatenate([R, np.eye(3)[None]])
     tp = np.concatenate([C, C[:1]])
     start = Cylinder(np.zeros(3), E_H, radius)
-    problem = BundleProblem(camera, (Rp, tp), X0, Observations(cam, point, pixels), fixed_poses=(0, K),
-                            cylinder=start, cylinder_reference=K, tau=1.0 / wall_sigma_m**2, huber_px=huber_px,
-                            huber_m=max(50 * wall_sigma_m, 1e-3), mad_k=mad_k, outlier_passes=outlier_passes,
-                            max_iterations=iterations)
+    problem = BundleProblem(camera, (Rp, tp), X0, Observations(cam, point, pixels),
+                            fixed_poses=tuple(range(held)) + (K,), cylinder=start, cylinder_reference=K,
+                            tau=1.0 / wall_sigma_m**2, huber_px=huber_px, huber_m=max(50 * wall_sigma_m, 1e-3),
+                            mad_k=mad_k, outlier_passes=outlier_passes, max_iterations=iterations)
     res = problem.solve()
     if res.cylinder is None or not np.all(np.isfinite(res.poses)):
         return None
-    sigma = axis_offset_sigma(problem, res)
+    return problem, res, P
+
+
+def bundle_window(gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[np.ndarray], R: np.ndarray,
+                  C: np.ndarray, camera: CameraModel, radius: float, held: int, *, wall_sigma_m: float = 1e-4,
+                  huber_px: float = 1.0, mad_k: float = 3.0, outlier_passes: int = 3,
+                  iterations: int = 50) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The sliding refinement as a bundle adjustment on the wall: the window's keyframes (R (K, 3, 3), C (K, 3) in
+    the pipe frame), the first `held` of them fixed where earlier windows left them, the rest free in all six
+    degrees of freedom, the points on a wall of the known radius. The wall's axis is free in the solve (no other
+    parameterisation of it is on offer), so the free keyframes come out relative to this stretch's axis; they are
+    put back relative to the pipe's, which is straight, from the last held keyframe on (`onto_axis`): left where
+    the solve put them, windows turn and sink a little each, and the trajectory bent 30 mm off the axis over
+    6 m. Returns the new (R, C) and the RMS reprojection error, or None when the window has too little shared
+    structure."""
+    out = _solve_on_wall(gids, uvs, bearings, R, C, camera, radius, held, wall_sigma_m, huber_px, mad_k,
+                         outlier_passes, iterations)
+    if out is None:
+        return None
+    _, res, _ = out
+    K = len(gids)
+    Rs, Cs = res.poses[:K, :3, :3], res.poses[:K, :3, 3]
+    Rn, Cn = onto_axis(res.cylinder, Rs[held:], Cs[held:], Rs[held - 1], Cs[held - 1])
+    return np.concatenate([R[:held], Rn]), np.concatenate([C[:held], Cn]), float(res.rms_px)
+
+
+def onto_axis(cylinder: Cylinder, R: np.ndarray, C: np.ndarray, anchor_R: np.ndarray,
+              anchor_C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (R (K, 3, 3), C (K, 3)) placed relative to `cylinder` as they are, but with its axis moved onto the
+    pipe frame's (+h through the origin): the anchor pose keeps its h and the direction round the axis it looks
+    in, so the poses go on from it."""
+    d = cylinder.direction * (1.0 if cylinder.direction @ E_H >= 0 else -1.0)
+
+    def frame(axis, origin):
+        look = anchor_R[:, 2] - (anchor_R[:, 2] @ axis) * axis
+        Y = look / np.linalg.norm(look)
+        return np.stack([np.cross(Y, axis), Y, axis]), origin + ((anchor_C - origin) @ axis) * axis
+
+    Mw, ow = frame(d, cylinder.origin)
+    Mg, og = frame(E_H, np.zeros(3))
+    G = Mg.T @ Mw
+    return np.einsum("ij,kjl->kil", G, R), (C - ow) @ G.T + og
+
+
+def bundle_batch(gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[np.ndarray], R: np.ndarray,
+                 C: np.ndarray, camera: CameraModel, radius: float, *, wall_sigma_m: float = 1e-4,
+                 huber_px: float = 1.0, mad_k: float = 3.0, outlier_passes: int = 3,
+                 iterations: int = 50) -> BatchResult | None:
+    """Bundle adjustment of the batch's keyframes (poses R (K, 3, 3), C (K, 3) in the pipe frame as
+    start) and wall points, with the pipe axis free relative to the first keyframe. None when the
+    batch has too few shared points to constrain its unknowns."""
+    out = _solve_on_wall(gids, uvs, bearings, R, C, camera, radius, 1, wall_sigma_m, huber_px, mad_k,
+                         outlier_passes, iterations)
+    if out is None:
+        return None
+    problem, res, P = out
+    K = len(gids)
     Rk, Ck = res.poses[:K, :3, :3], res.poses[:K, :3, 3]
     Rn, Cn = to_pipe_frame(res.cylinder, Rk, Ck)
     tilt = float(np.arccos(np.clip(abs(res.cylinder.direction @ E_H), 0.0, 1.0)))
-    return BatchResult(Rn, Cn, Cn[0, :2].copy(), res.rms_px, int(res.inliers.sum()), P, tilt, sigma)
+    # the poses are solved relative to the held first keyframe, and the axis relative to them: the mount's
+    # uncertainty is the axis's, carried through to the mean mount over the batch (the robot's wobble averaged)
+    params = res.cylinder.local_params(problem.ref_R, problem.ref_t)
+
+    def mount(p):
+        Rm, Cm = to_pipe_frame(Cylinder.from_local(p, problem.ref_R, problem.ref_t, radius), Rk, Ck)
+        return np.mean([mount_of(r, c) for r, c in zip(Rm, Cm)], axis=0)
+
+    J = _numeric_jacobian(mount, params)
+    axis_cov = axis_covariance(problem, res)
+    cov = J @ axis_cov @ J.T if np.all(np.isfinite(axis_cov)) else np.full((4, 4), np.inf)
+    sigma = np.sqrt(np.maximum(np.diag(cov)[2:], 0.0))
+    return BatchResult(Rn, Cn, Cn[0, :2].copy(), res.rms_px, int(res.inliers.sum()), P, tilt, sigma, mount(params), cov,
+                       _capped_rms(problem, res, 3 * huber_px))
+
+
+def _capped_rms(problem: BundleProblem, res: BundleResult, cap_px: float) -> float:
+    """RMS of every observation's reprojection error capped at cap_px: a fit measure that, unlike the inlier RMS,
+    does not improve by calling more observations outliers."""
+    state = BundleState(res.poses[:, :3, :3], res.poses[:, :3, 3], res.points,
+                        res.cylinder.local_params(problem.ref_R, problem.ref_t))
+    e = np.linalg.norm(problem.linearise(state, jacobians=False).reproj, axis=1)
+    return float(np.sqrt(np.mean(np.minimum(e, cap_px) ** 2)))
+
+
+def mount_of(R: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """(angle, roll, C_X, C_Y) of a camera (R camera -> pipe, C) in the pipe frame: the angle (rad) between its
+    optical axis and the pipe axis (+h), the roll (rad) of the pipe axis in the image (0: along image x,
+    positive towards image y) and its offset from the axis in the pipe frame turned about the axis so that
+    the camera looks towards +Y (the report's R0 convention; the first keyframe defines the frame that way)."""
+    d = R[2]  # the pipe axis +h in camera axes
+    look = R[:, 2]  # the optical axis in pipe axes
+    turn = np.arctan2(-look[0], look[1])  # how far round the axis from +Y it looks
+    c, s = np.cos(turn), np.sin(turn)
+    return np.array([np.arccos(np.clip(d[2], -1.0, 1.0)), np.arctan2(d[1], d[0]),
+                     c * C[0] + s * C[1], -s * C[0] + c * C[1]])
+
+
+def _numeric_jacobian(f, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    cols = []
+    for i in range(len(x)):
+        d = np.zeros_like(x)
+        d[i] = eps
+        cols.append((f(x + d) - f(x - d)) / (2 * eps))
+    return np.stack(cols, axis=-1)
 
 
 def to_pipe_frame(cylinder: Cylinder, R: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -111,20 +216,21 @@ def to_pipe_frame(cylinder: Cylinder, R: np.ndarray, C: np.ndarray) -> tuple[np.
     return np.einsum("ij,kjl->kil", M, R), (C - origin) @ M.T
 
 
-def axis_offset_sigma(problem: BundleProblem, res: BundleResult) -> np.ndarray:
-    """Standard deviations (2,) of the axis offset (t_X, t_Y) relative to the reference camera -- the first
-    keyframe's (C_X, C_Y) -- from the inverse of the reduced Gauss-Newton system at the solution, with the
-    keypoint noise taken from the inlier reprojection RMS. Columns of the inverse come from the solver's
-    own Schur step with a unit gradient on one axis parameter and none elsewhere."""
+def axis_covariance(problem: BundleProblem, res: BundleResult) -> np.ndarray:
+    """Covariance (4, 4) of the axis parameters (gamma, beta, t_X, t_Y) relative to the reference camera, from the
+    inverse of the reduced Gauss-Newton system at the solution, with the keypoint noise taken from the inlier
+    reprojection RMS. Columns of the inverse come from the solver's own Schur step with a unit gradient on one
+    axis parameter and none elsewhere. Infinite where the system is singular."""
     R, t = res.poses[:, :3, :3], res.poses[:, :3, 3]
     state = BundleState(R, t, res.points, res.cylinder.local_params(R[problem.ref], t[problem.ref]))
     stage = problem.stage(res.inliers)
     eq = problem.normal_equations(state, res.inliers, stage)
-    out = np.full(2, np.inf)
-    for j in (2, 3):
+    cov = np.empty((4, 4))
+    for j in range(4):
         g = np.zeros(len(eq.gx))
         g[j] = -1.0
         step = solve_damped(replace(eq, gc=np.zeros_like(eq.gc), gp=np.zeros_like(eq.gp), gx=g), stage.schur, 0.0)
-        if step is not None and step[1][j] > 0:
-            out[j - 2] = np.sqrt(step[1][j]) * max(res.rms_px, 1e-3)
-    return out
+        if step is None or not step[1][j] > 0:
+            return np.full((4, 4), np.inf)
+        cov[:, j] = step[1][:4]
+    return 0.5 * (cov + cov.T) * max(res.rms_px, 1e-3) ** 2

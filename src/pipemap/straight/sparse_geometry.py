@@ -93,6 +93,19 @@ def initial_pose(cx: float, cy: float) -> tuple[np.ndarray, np.ndarray]:
     return R0.copy(), np.array([cx, cy, 0.0])
 
 
+def rotation_from_travel(travel: np.ndarray) -> np.ndarray:
+    """Camera -> pipe rotation of a camera travelling along the pipe axis in the direction `travel` (its own
+    axes): h along the travel, and the optical axis in the (Y, h) plane on the +Y side (the report's
+    convention for R0, which this gives for a travel along image x)."""
+    d = np.asarray(travel, float) / np.linalg.norm(travel)
+    look = np.array([0.0, 0.0, 1.0]) - d[2] * d
+    n = np.linalg.norm(look)
+    if n < 1e-6:
+        raise ValueError("the camera travels along its optical axis: it looks along the pipe, not at the wall")
+    Y = look / n
+    return np.stack([np.cross(Y, d), Y, d])
+
+
 def wall_distance(R: np.ndarray, C: np.ndarray, radius: float) -> float:
     """Distance from the camera (R, C) to the wall along its optical axis: what sets the metric scale of
     its image motion."""

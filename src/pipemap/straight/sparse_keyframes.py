@@ -57,9 +57,10 @@ def inlier_pairs(previous: View, current: View, pairs: np.ndarray, threshold_rad
 class KeyframeSelector:
     """Feeds images in order, yields KeyframeLinks as keyframes are decided."""
 
-    def __init__(self, camera: CameraModel, sparse: SparseSettings, seed: int):
+    def __init__(self, camera: CameraModel, sparse: SparseSettings, seed: int, flatten_light: bool = False):
         self.camera = camera
         self.sparse = sparse
+        self.flatten_light = flatten_light  # the images are not gain-corrected: flatten the light (sparse_features)
         self.rng = np.random.default_rng(seed)
         self.threshold_rad = sparse.ransac_threshold_px / float(np.mean(camera.params[:2]))  # pinhole fx, fy
         self.key: View | None = None
@@ -67,7 +68,7 @@ class KeyframeSelector:
         self.first: View | None = None
 
     def view(self, index: int, image: np.ndarray) -> View:
-        kp = detect(image, self.sparse)
+        kp = detect(image, self.sparse, self.flatten_light)
         bearings, valid = self.camera.unproject(kp.uv)
         return View(index, kp, bearings, valid)
 
