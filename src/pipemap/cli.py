@@ -109,20 +109,70 @@ def main(
 
 @app.command()
 @friendly
-def info(dataset: Path = typer.Argument(..., help="Dataset folder or its dataset.yaml.")) -> None:
-    """Check a dataset folder against the format and summarise it."""
-    from pipemap.dataset import load_dataset
+def info(
+    dataset: Path = typer.Argument(..., help="Dataset folder or its dataset.yaml."),
+    quick: bool = typer.Option(False, "--quick", help="Do not read every frame (readable, repeated and damaged frames "
+                               "are then not counted)."),
+) -> None:
+    """Check a dataset folder against the format and summarise it; reads every frame once to count the
+    readable, repeated and damaged ones."""
+    from pipemap.dataset import FootageLog, load_dataset
 
     ds = load_dataset(dataset)
     n = len(ds)
-    first = ds.read(0)  # reads and checks one frame (size, gain mask)
+    if n == 0:
+        raise PipemapError("the recording holds no frames", ds.source.path)
+    log = FootageLog()
+    first = None
+    if quick:
+        first = next(iter(list(ds.frames(stop=1, log=log))), None)  # reads and checks one frame (size, gain mask)
+    else:
+        with frame_progress("checking frames") as progress:
+            for frame in ds.frames(log=log):
+                first = first if first is not None else frame
+                progress(frame.index + 1, n)
+    if first is None and not quick:
+        detail = f": {log.damage[0].line()}" if log.damage else ""
+        raise PipemapError(f"none of the {n} frames can be read{detail}", ds.source.path)
+    unchecked = "not checked (--quick)"
+    times = ds.times()
     table = Table(title=f"dataset {ds.name}", show_header=False)
     table.add_row("folder", str(ds.root))
-    table.add_row("frames", f"{n} ({n / ds.fps:.1f} s at {ds.fps:g} fps)")
+    table.add_row("recording", ds.describe())
+    table.add_row("frames", f"{n} ({times[-1] + ds.frame_period:.1f} s at {ds.fps:g} fps)")
+    if abs(ds.frame_period * ds.fps - 1.0) > 1e-6:
+        table.add_row("frame rate", f"the recording's frames are {1.0 / ds.frame_period:.3g} per second, "
+                                    f"dataset.yaml says {ds.fps:g}")
+    table.add_row("readable", unchecked if quick else f"{log.frames} of {n}")
+    if quick:
+        table.add_row("repeated", unchecked)
+    else:
+        spans = log.to_dict()["repeated_frames"]
+        listed = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in spans[:8]) + (", ..." if len(spans) > 8 else "")
+        table.add_row("repeated", f"{len(log.repeated)} ({listed})" if log.repeated else "none")
+    drops = ds.drops()
+    if not ds.source.timed:
+        dropped = "not known (the frames carry no times)"
+    else:
+        where = ", ".join(str(i) for i, _ in drops[:8]) + (", ..." if len(drops) > 8 else "")
+        gaps = f"{len(drops)} gap{'s' if len(drops) > 1 else ''}"
+        dropped = f"{sum(k for _, k in drops)} in {gaps} (before frame{'s' if len(drops) > 1 else ''} {where})" \
+            if drops else "none"
+    table.add_row("dropped", dropped)
+    if quick:
+        cut = ds.source.cut()  # known without decoding
+        damage = unchecked + (f"; {cut.line()}" if cut is not None else "")
+    else:
+        damage = "; ".join(d.line() for d in log.damage) or "none"
+    table.add_row("damage", damage)
+    table.add_row("de-interlacing", ds.deinterlace)
+    if ds.mask is not None:
+        table.add_row("mask", f"{ds.mask_path} ({ds.mask.mean():.0%} of the pixels usable)")
     table.add_row("camera", repr(ds.camera))
     table.add_row("pipe radius", f"{ds.radius_m:.4f} m")
     table.add_row("gain mask", str(ds.gain_mask_path) if ds.has_gain_mask else "none")
-    table.add_row("first frame mean grey", f"{float(first.image.mean()):.1f}")
+    if first is not None:
+        table.add_row("first frame mean grey", f"{float(first.image.mean()):.1f}")
     gt = ds.ground_truth_poses()
     table.add_row("ground truth", f"{len(gt)} poses, path {gt.path_length():.3f} m" if gt is not None else "none")
     console.print(table)
@@ -155,15 +205,22 @@ def simulate(
     motion_blur: int = typer.Option(1, "--motion-blur", help="Sub-frames averaged per frame (1: no blur)."),
     texture: Optional[str] = typer.Option(None, "--texture", help="Wall style: procedural, brick or gravel (photos)."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Rendering processes (default: one per core)."),
+    camera_effects: Optional[str] = typer.Option(
+        None, "--camera-effects", help="Inspection footage's defects: a profile ("
+        + ", ".join(__import__("pipemap.sim.effects", fromlist=["PROFILES"]).PROFILES)
+        + ") or a YAML file of CameraEffects (may start from 'profile: NAME'): video, overlay, gain, shutter, "
+        "interlace, link. Default: the preset's (none for most)."),
 ) -> None:
-    """Render a synthetic dataset with exact ground truth (dataset.yaml, images/, ground_truth/)."""
+    """Render a synthetic dataset with exact ground truth (dataset.yaml, images/ or a video, ground_truth/)."""
     from pipemap.sim.simulate import simulate as render_dataset
+    from pipemap.trajectory import read_tum
 
     with frame_progress(f"rendering {preset}") as progress:
         render_dataset(preset, out, width=width, height=height, frames=frames, seed=seed, route=route,
                        progress=progress, spacing_m=spacing, motion_blur=motion_blur, texture=texture,
-                       workers=workers)
-    n = len(list((out / "images").glob("*.png")))
+                       workers=workers, effects=camera_effects)
+    poses = out / "ground_truth" / "poses.tum"
+    n = len(read_tum(poses)) if poses.exists() else len(list((out / "images").glob("*.png")))
     console.print(f"{preset}: {n} frames written to {out}")
 
 

@@ -1,46 +1,41 @@
-"""Reads a dataset folder (formats.md): dataset.yaml, frames streamed lazily, gain mask, ground truth."""
+"""Reads a dataset folder (formats.md): dataset.yaml, frames streamed lazily, gain mask, ground truth.
+
+The frames come from an image folder, a video file or a ROS bag (pipemap.footage); whichever it
+is, a frame's index is its place in the recording, and a frame that cannot be read is skipped
+while streaming and recorded, so a damaged recording is read up to (and around) the damage."""
 
 from __future__ import annotations
 
 import glob
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
-import cv2
 import numpy as np
 
 from pipemap.camera import CameraModel, camera_from_dict
 from pipemap.errors import PipemapError
+from pipemap.footage import (DEINTERLACE_METHODS, Damage, FootageLog, FrameSource, ImageFolder, RawFrame,
+                             RepeatDetector, RosBag, VideoFile, deinterlace, frame_period, is_bag, missing_before,
+                             read_grey, read_mask, read_timestamps, to_grey)
 from pipemap.yamlfile import read_yaml
 from pipemap.network import PipeNetwork, load_network
 from pipemap.trajectory import Trajectory, read_tum
 
-FORMAT = "pipemap-dataset/1"
-VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".m4v", ".webm", ".mpg", ".mpeg"}
+FORMAT = "pipemap-dataset/2"
+FORMATS_READ = ("pipemap-dataset/1", FORMAT)  # /2 added deinterlace, topic, mask, timestamps: all optional
+VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".m4v", ".webm", ".mpg", ".mpeg", ".ts", ".m2ts"}
+
+__all__ = ["Dataset", "Frame", "FootageLog", "Damage", "load_dataset", "read_grey", "to_grey", "FORMAT"]
 
 
 @dataclass(frozen=True)
 class Frame:
     index: int
-    timestamp: float
+    timestamp: float  # seconds since the recording's first frame: PTS, ROS stamps, timestamps file, else index / fps
     image: np.ndarray  # float32 grey, 0..255 scale (16-bit input is rescaled), gain-corrected when asked
-
-
-def read_grey(path: Path) -> np.ndarray:
-    """Any 8/16-bit grey or colour image -> float32 grey on the 0..255 scale."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise PipemapError("cannot read image (missing, empty or corrupt)", path)
-    return to_grey(img)
-
-
-def to_grey(img: np.ndarray) -> np.ndarray:
-    scale = 255.0 / 65535.0 if img.dtype == np.uint16 else 1.0
-    if img.ndim == 3:
-        code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
-        img = cv2.cvtColor(img, code)
-    return img.astype(np.float32) * np.float32(scale)
+    repeated: bool = False  # nearly identical to the last frame that was not: a stalled link (only while streaming)
+    dropped_before: int = 0  # frames missing from the recording just before this one (a gap in time)
 
 
 @dataclass
@@ -50,20 +45,56 @@ class Dataset:
     root: Path
     yaml_path: Path
     name: str
-    fps: float
+    fps: float  # the nominal rate from dataset.yaml
     camera: CameraModel
     radius_m: float
-    image_paths: list[Path] | None  # None for a video
+    image_paths: list[Path] | None  # None for a video or a bag
     video_path: Path | None
     gain_mask_path: Path | None
+    source: FrameSource
+    bag_path: Path | None = None
+    deinterlace: str = "none"
+    mask_path: Path | None = None
+    mask: np.ndarray | None = field(default=None, repr=False)  # (H, W) bool, True = usable pixel; None: all usable
 
     def __len__(self) -> int:
-        if self.image_paths is not None:
-            return len(self.image_paths)
-        return _video_frame_count(self.video_path)
+        """Frames in the recording, readable or not (see `scan` for how many are readable)."""
+        return len(self.source)
+
+    # -- time ---------------------------------------------------------------------------
+
+    def times(self) -> np.ndarray:
+        """(len,) seconds since the first frame; cached (one pass over a video's or bag's index)."""
+        if getattr(self, "_times", None) is None:
+            self._times = np.asarray(self.source.times(), np.float64)
+        return self._times
 
     def timestamp(self, index: int) -> float:
-        return index / self.fps
+        return float(self.times()[index])
+
+    @property
+    def time_origin(self) -> float:
+        """The first frame's own time in seconds (a video's first PTS, a bag's first stamp as Unix
+        time, a timestamps file's first line; 0 for images without one)."""
+        return self.source.origin
+
+    @property
+    def frame_period(self) -> float:
+        """The spacing that dropped frames are counted against (footage.stalls.frame_period)."""
+        return frame_period(self.times(), self.fps)
+
+    def missing_before(self) -> np.ndarray:
+        """(len,) int: frames dropped just before each frame, from the timestamps alone (cheap)."""
+        if getattr(self, "_missing", None) is None:
+            self._missing = missing_before(self.times(), self.frame_period)
+        return self._missing
+
+    def drops(self) -> list[tuple[int, int]]:
+        """(index of the frame after the gap, frames missing) for every gap in the recording."""
+        missing = self.missing_before()
+        return [(int(i), int(missing[i])) for i in np.flatnonzero(missing)]
+
+    # -- images -------------------------------------------------------------------------
 
     @property
     def has_gain_mask(self) -> bool:
@@ -88,35 +119,65 @@ class Dataset:
         return self._gain
 
     def read(self, index: int, gain_correct: bool = True) -> Frame:
-        if self.image_paths is None:
-            for frame in self.frames(start=index, stop=index + 1, gain_correct=gain_correct):
-                return frame
-            raise PipemapError(f"video has no frame {index}", self.video_path)
-        if not 0 <= index < len(self.image_paths):
+        """One frame by index (a video seeks to it). PipemapError if that frame is damaged."""
+        if not 0 <= index < len(self):
             raise IndexError(index)
-        return self._frame(index, read_grey(self.image_paths[index]), self.image_paths[index], gain_correct)
+        return self._frame(self.source.read(index), gain_correct)
 
-    def frames(self, start: int = 0, stop: int | None = None, step: int = 1, gain_correct: bool = True) -> Iterator[Frame]:
-        """Stream frames lazily in order: index, timestamp = index / fps, float32 grey image."""
-        if self.image_paths is not None:
-            stop = len(self.image_paths) if stop is None else min(stop, len(self.image_paths))
-            for i in range(start, stop, step):
-                yield self._frame(i, read_grey(self.image_paths[i]), self.image_paths[i], gain_correct)
-            return
-        for i, img in _decode_video(self.video_path, start, stop):
-            if (i - start) % step == 0:
-                yield self._frame(i, to_grey(img), self.video_path, gain_correct)
+    def frames(self, start: int = 0, stop: int | None = None, step: int = 1, gain_correct: bool = True,
+               log: FootageLog | None = None) -> Iterator[Frame]:
+        """Stream the readable frames in index order, flagged `repeated` and `dropped_before`.
 
-    def _frame(self, index: int, img: np.ndarray, where: Path, gain_correct: bool) -> Frame:
-        if img.shape != (self.camera.height, self.camera.width):
-            raise PipemapError(
-                f"frame {index} is {img.shape[1]}x{img.shape[0]}, dataset.yaml says {self.camera.width}x{self.camera.height}",
-                where,
-            )
+        Damaged frames are skipped. Pass a FootageLog to have it filled with what this pass found
+        (frames read, repeated indices, drops, damage records) for run.json."""
+        stop = len(self) if stop is None else min(stop, len(self))
+        missing = self.missing_before()
+        repeats = RepeatDetector(self.mask)
+        counted = start  # drops before this index are already handed out
+        for item in self.source.stream(start, stop):
+            if isinstance(item, Damage):
+                if log is not None:
+                    log.add_damage(item)
+                continue
+            if (item.index - start) % step:
+                continue
+            self._check_size(item)
+            dropped = int(missing[counted:item.index + 1].sum())
+            counted = item.index + 1
+            repeated = repeats.is_repeat(item.image, item.requantised)
+            if log is not None:
+                log.frames += 1
+                if repeated:
+                    log.repeated.append(item.index)
+                if dropped:
+                    log.drops.append((item.index, dropped))
+            yield self._frame(item, gain_correct, repeated, dropped)
+
+    def scan(self, progress: Callable[[int, int], None] | None = None) -> FootageLog:
+        """Read every frame once: how many are readable, repeated, dropped and damaged."""
+        log = FootageLog()
+        total = len(self)
+        for frame in self.frames(gain_correct=False, log=log):
+            if progress is not None:
+                progress(frame.index + 1, total)
+        return log
+
+    def describe(self) -> str:
+        return self.source.describe()
+
+    def _check_size(self, raw: RawFrame) -> None:
+        h, w = raw.image.shape[:2]
+        if (h, w) != (self.camera.height, self.camera.width):
+            raise PipemapError(f"frame {raw.index} is {w}x{h}, dataset.yaml says {self.camera.width}x{self.camera.height}",
+                               self.source.where(raw.index))
+
+    def _frame(self, raw: RawFrame, gain_correct: bool, repeated: bool = False, dropped: int = 0) -> Frame:
+        self._check_size(raw)
+        img = deinterlace(raw.image, self.deinterlace, raw.top_field_first)
         gain = self.gain() if gain_correct else None
         if gain is not None:
             img = img / gain
-        return Frame(index, self.timestamp(index), img)
+        return Frame(raw.index, self.timestamp(raw.index), img, repeated, dropped)
 
     # -- ground truth -------------------------------------------------------------------
 
@@ -131,37 +192,6 @@ class Dataset:
     def network(self) -> PipeNetwork | None:
         path = self.ground_truth_dir / "network.yaml"
         return load_network(path) if path.exists() else None
-
-
-def _decode_video(path: Path, start: int, stop: int | None) -> Iterator[tuple[int, np.ndarray]]:
-    import av
-
-    try:
-        container = av.open(str(path))
-    except (av.error.FFmpegError, OSError) as exc:
-        raise PipemapError(f"cannot open video: {exc}", path) from None
-    with container:
-        try:
-            for i, frame in enumerate(container.decode(video=0)):
-                if stop is not None and i >= stop:
-                    break
-                if i >= start:
-                    yield i, frame.to_ndarray(format="gray")
-        except av.error.FFmpegError as exc:
-            raise PipemapError(f"cannot decode video: {exc}", path) from None
-
-
-def _video_frame_count(path: Path) -> int:
-    import av
-
-    try:
-        with av.open(str(path)) as container:
-            n = container.streams.video[0].frames
-            if n > 0:
-                return int(n)
-            return sum(1 for _ in container.demux(video=0) if _.size)
-    except (av.error.FFmpegError, OSError, IndexError) as exc:
-        raise PipemapError(f"cannot open video: {exc}", path) from None
 
 
 def _require(data: dict, key: str, path: Path):
@@ -181,6 +211,72 @@ def _positive(value, path: Path, key: str) -> float:
     return float(value)
 
 
+def _file_key(data: dict, key: str, root: Path, yaml_path: Path) -> Path | None:
+    value = data.get(key)
+    if value is None or value == "":
+        return None
+    if not isinstance(value, str):
+        raise PipemapError(f"expected a file name, got {value!r}", yaml_path, key)
+    path = root / value
+    if not path.is_file():
+        raise PipemapError(f"file not found: {path}", yaml_path, key)
+    return path
+
+
+def _deinterlace_method(data: dict, yaml_path: Path) -> str:
+    value = data.get("deinterlace")
+    if value is None or value is False:  # YAML reads `off` / `no` as false
+        return "none"
+    if not isinstance(value, str) or value.lower() not in DEINTERLACE_METHODS:
+        raise PipemapError(f"expected one of {', '.join(DEINTERLACE_METHODS)}, got {value!r}", yaml_path, "deinterlace")
+    return value.lower()
+
+
+def _bags(images: str, target: Path, matches: list[Path]) -> list[Path]:
+    """The bag files `images:` names: one bag (ROS 1 file, ROS 2 folder or storage file), or a glob
+    of ROS 1 files (a split recording); [] when it names something else."""
+    if matches:
+        return matches if all(p.suffix.lower() == ".bag" for p in matches) else []
+    return [target] if not any(c in images for c in "*?[") and is_bag(target) else []
+
+
+def _source(data: dict, root: Path, yaml_path: Path, fps: float) -> tuple[FrameSource, dict]:
+    """The recording that `images:` names, and the Dataset fields that describe it."""
+    images = _require(data, "images", yaml_path)
+    if not isinstance(images, str) or not images.strip():
+        raise PipemapError("expected a glob of image files, a video file or a ROS bag", yaml_path, "images")
+    topic = data.get("topic")
+    if topic is not None and (not isinstance(topic, str) or not topic.strip()):
+        raise PipemapError(f"expected a topic name, got {topic!r}", yaml_path, "topic")
+    target = root / images
+    is_glob = any(c in images for c in "*?[")
+    matches = sorted(Path(p) for p in glob.glob(str(target))) if is_glob else []
+    bags = _bags(images, target, matches)
+    if topic is not None and not bags:
+        raise PipemapError("is read only from ROS bags, and images: is not one", yaml_path, "topic")
+    if data.get("timestamps") is not None and (bags or target.suffix.lower() in VIDEO_SUFFIXES):
+        raise PipemapError("is read only for image folders (videos and bags carry their own times)",
+                           yaml_path, "timestamps")
+    if bags:
+        if not bags[0].exists():
+            raise PipemapError(f"ROS bag not found: {bags[0]}", yaml_path, "images")
+        bag = RosBag(bags, topic, yaml_path)
+        bag.check()
+        return bag, {"image_paths": None, "video_path": None, "bag_path": bags[0]}
+    if not is_glob and target.suffix.lower() in VIDEO_SUFFIXES:
+        if not target.is_file():
+            raise PipemapError(f"video file not found: {target}", yaml_path, "images")
+        video = VideoFile(target, fps)
+        video.check()
+        return video, {"image_paths": None, "video_path": target}
+    paths = [p for p in (matches if is_glob else [target]) if p.is_file()]
+    if not paths:
+        raise PipemapError(f"no images match {images!r}", yaml_path, "images")
+    times_path = _file_key(data, "timestamps", root, yaml_path)
+    times = read_timestamps(times_path, len(paths)) if times_path is not None else None
+    return ImageFolder(paths, fps, times), {"image_paths": paths, "video_path": None}
+
+
 def load_dataset(path: str | Path) -> Dataset:
     """Open a dataset folder (or its dataset.yaml) and validate it; errors name the file and key."""
     path = Path(path)
@@ -191,29 +287,16 @@ def load_dataset(path: str | Path) -> Dataset:
     root = yaml_path.parent
     data = read_yaml(yaml_path, "dataset.yaml")
     fmt = data.get("format")
-    if fmt != FORMAT:
-        raise PipemapError(f"expected '{FORMAT}', found {fmt!r}", yaml_path, "format")
+    if fmt not in FORMATS_READ:
+        raise PipemapError(f"expected '{FORMAT}' (or '{FORMATS_READ[0]}'), found {fmt!r}", yaml_path, "format")
     fps = _positive(_require(data, "fps", yaml_path), yaml_path, "fps")
     radius = _positive(_require(data, "pipe.radius_m", yaml_path), yaml_path, "pipe.radius_m")
     camera = camera_from_dict(_require(data, "camera", yaml_path), yaml_path)
-    images = _require(data, "images", yaml_path)
-    if not isinstance(images, str) or not images.strip():
-        raise PipemapError("expected a glob of image files or a video file", yaml_path, "images")
-    image_paths = video_path = None
-    target = root / images
-    if target.suffix.lower() in VIDEO_SUFFIXES and not any(c in images for c in "*?["):
-        if not target.is_file():
-            raise PipemapError(f"video file not found: {target}", yaml_path, "images")
-        video_path = target
-    else:
-        image_paths = sorted(Path(p) for p in glob.glob(str(target)))
-        image_paths = [p for p in image_paths if p.is_file()]
-        if not image_paths:
-            raise PipemapError(f"no images match {images!r}", yaml_path, "images")
-    gain_mask_path = None
-    if data.get("gain_mask"):
-        gain_mask_path = root / str(data["gain_mask"])
-        if not gain_mask_path.is_file():
-            raise PipemapError(f"gain mask not found: {gain_mask_path}", yaml_path, "gain_mask")
+    method = _deinterlace_method(data, yaml_path)
+    source, fields = _source(data, root, yaml_path, fps)
+    gain_mask_path = _file_key(data, "gain_mask", root, yaml_path)
+    mask_path = _file_key(data, "mask", root, yaml_path)
+    mask = read_mask(mask_path, camera.width, camera.height) if mask_path is not None else None
     name = str(data.get("name") or root.name)
-    return Dataset(root, yaml_path, name, fps, camera, radius, image_paths, video_path, gain_mask_path)
+    return Dataset(root, yaml_path, name, fps, camera, radius, fields.pop("image_paths"), fields.pop("video_path"),
+                   gain_mask_path, source, deinterlace=method, mask_path=mask_path, mask=mask, **fields)

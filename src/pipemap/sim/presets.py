@@ -15,6 +15,7 @@ for, simulate() keeps the first N frames of the route at the same spacing.
   past its start along the first side, so the run revisits it (loop closure).
 - cctv-loop / cctv-straight: a sewer crawler's forward-looking CCTV camera (100 deg, barrel
   distortion) in a 300 mm tee loop and a straight pipe; the robot wobbles up to 1 deg.
+- cctv-recording: cctv-straight at 720x576 with the camera effects profile cctv-h264 by default.
 - wall-camera-90 / -75 / -50: a wall camera off the axis of a 387.56 mm pipe, its optical axis at
   90, 75 or 50 deg to the pipe axis.
 - white-card: the 2010 report's gain-mask images: a white pipe wall, LEDs on, camera still.
@@ -55,6 +56,7 @@ class Setup:
     still: bool = False  # every frame at the route's first pose (white card)
     gain_mask: bool = False
     notes: dict = field(default_factory=dict)
+    effects: str | None = None  # the camera effects profile (effects.PROFILES) rendered when none is asked for
 
 
 @dataclass(frozen=True)
@@ -281,6 +283,14 @@ def _cctv_straight(width, height, route, seed):
     return Setup("cctv-straight", scene, cctv_camera(width, height), scene.runs["S1"], drive, _cctv_appearance(), 7.5)
 
 
+def _cctv_recording(width, height, route, seed):
+    # The straight CCTV run as a crawler's recorder delivers it: PAL size, H.264 at CRF 28, text burned in,
+    # the gain drifting and stepping, a flaky link (effects profile cctv-h264; effects="clean" for the clean frames).
+    if width is None and height is None:
+        width, height = 720, 576
+    return replace(_cctv_straight(width, height, route, seed), name="cctv-recording", effects="cctv-h264")
+
+
 def _wall_camera(mount_deg: float):
     """A 640x480, 70 deg camera looking at the wall of a 387.56 mm pipe from 3 cm beside and 4 cm below
     the axis, its optical axis at `mount_deg` to the pipe axis (turned towards the direction of travel)."""
@@ -325,6 +335,9 @@ register_preset("cctv-loop", "sewer crawler's forward-looking CCTV (100 deg, bar
                 _cctv_loop)
 register_preset("cctv-straight", "forward-looking CCTV (100 deg, 640x480) in a straight 6 m x 300 mm pipe",
                 ("forward", "forward-reverse"), _cctv_straight)
+register_preset("cctv-recording", "cctv-straight as recorded footage: 720x576, camera effects profile cctv-h264 "
+                "by default (H.264 CRF 28, counter and clock, gain drift and steps, 5 % repeated, 1 % dropped frames)",
+                ("forward", "forward-reverse"), _cctv_recording)
 for _mount in (90, 75, 50):
     register_preset(f"wall-camera-{_mount}", f"640x480 70 deg camera 3 cm beside and 4 cm below the axis of a 387.56 mm "
                     f"pipe, its optical axis at {_mount} deg to the pipe axis", ("forward-reverse", "forward"),

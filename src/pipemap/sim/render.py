@@ -153,6 +153,11 @@ class Renderer:
 
     def radiance(self, R_wc: np.ndarray, t_wc: np.ndarray) -> np.ndarray:
         """(H, W) float32 radiance of one pose."""
+        return self.shading(R_wc, t_wc).radiance()
+
+    def shading(self, R_wc: np.ndarray, t_wc: np.ndarray) -> "Shading":
+        """The parts of one pose's radiance: the wall's albedo, which moves with the wall, and the
+        LED light on it, which moves with the camera; with the wall points and hits."""
         P, N, h, s, hits = self.surface_points(R_wc, t_wc)
         ap = self.appearance
         B = self.pixels.components
@@ -165,13 +170,7 @@ class Renderer:
         if hits.cap.any():
             albedo[hits.cap] *= np.float32(ap.cap_albedo)
         irr, spec = self._lighting(P, N, hits)
-        lit = hits.hit
-        rad = np.zeros(self.camera.height * self.camera.width, np.float32)
-        value = albedo[lit] * (irr[lit] + np.float32(ap.ambient))
-        if spec is not None:
-            value += np.float32(ap.specular_strength) * spec[lit]
-        rad[self.pixels.index[lit]] = value
-        return rad.reshape(self.camera.height, self.camera.width)
+        return Shading(self, albedo, irr, spec, P, hits)
 
     def _lighting(self, P: np.ndarray, N: np.ndarray, hits):
         """Irradiance and specular (N,) over the valid pixels.
@@ -250,6 +249,40 @@ class Renderer:
         if len(poses) > 1:
             rad *= np.float32(1.0 / len(poses))
         return self.expose(rad, rng)
+
+
+@dataclass
+class Shading:
+    """One pose's radiance in parts, over the valid pixels (pixels.index order): radiance =
+    albedo * (irradiance + ambient) + specular_strength * specular on the lit pixels, 0 elsewhere."""
+
+    renderer: Renderer
+    albedo: np.ndarray  # (N,) float32
+    irradiance: np.ndarray  # (N,) float32
+    specular: np.ndarray | None  # (N,) float32
+    points: np.ndarray  # (3, N) float32 camera-frame wall points
+    hits: object  # raycast.Hits
+
+    def radiance(self, albedo: np.ndarray | None = None) -> np.ndarray:
+        """(H, W) float32 radiance; `albedo` (H, W) replaces the pose's own (e.g. resampled along the
+        image motion for motion blur) while the light stays where the camera's LEDs put it."""
+        r = self.renderer
+        ap = r.appearance
+        lit = self.hits.hit
+        a = self.albedo[lit] if albedo is None else albedo.ravel()[r.pixels.index[lit]]
+        rad = np.zeros(r.camera.height * r.camera.width, np.float32)
+        value = a * (self.irradiance[lit] + np.float32(ap.ambient))
+        if self.specular is not None:
+            value += np.float32(ap.specular_strength) * self.specular[lit]
+        rad[r.pixels.index[lit]] = value
+        return rad.reshape(r.camera.height, r.camera.width)
+
+    def albedo_image(self) -> np.ndarray:
+        """(H, W) float32 albedo, 0 where no wall is seen."""
+        r = self.renderer
+        img = np.zeros(r.camera.height * r.camera.width, np.float32)
+        img[r.pixels.index] = np.where(self.hits.hit, self.albedo, 0)
+        return img.reshape(r.camera.height, r.camera.width)
 
 
 def _groups(pipe: np.ndarray, k: int):

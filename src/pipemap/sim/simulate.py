@@ -7,14 +7,16 @@ the number of frames.
 
 Frame count: `frames=N` keeps the first N frames of the preset's route at its spacing
 (`spacing_m` overrides the spacing, e.g. to cover a whole loop in fewer frames).
+
+Camera effects (`effects=`, effects.py) turn the frames into inspection footage (footage.py: video,
+burned-in text, gain changes, blur, interlacing, repeated and dropped frames); without them the
+dataset is byte for byte what it was before they existed.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
-import queue
-import threading
 from pathlib import Path
 from typing import Callable
 
@@ -27,7 +29,9 @@ from dataclasses import replace
 from pipemap.errors import PipemapError
 from pipemap.gain_mask import save_gain_mask, smooth_mask
 from pipemap.output import result_folder
+from pipemap.sim.effects import CameraEffects, load_effects
 from pipemap.sim.presets import PRESETS, Setup, _info, get_setup, list_presets
+from pipemap.sim.recorder import PngWriter as _PngWriter
 from pipemap.sim.render import Renderer, frame_rng
 from pipemap.sim.texture import STYLES
 from pipemap.sim.route import AxisPath, camera_trajectory, drive_distances, visits
@@ -83,7 +87,7 @@ def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, ro
 def simulate(preset: str, out: Path, *, width: int | None = None, height: int | None = None, frames: int | None = None,
              seed: int = 0, route: str | None = None, progress: Callable[[int, int], None] | None = None,
              spacing_m: float | None = None, motion_blur: int = 1, texture: str | None = None,
-             workers: int | None = None) -> Path:
+             workers: int | None = None, effects: str | Path | dict | CameraEffects | None = None) -> Path:
     """Render `preset` into the dataset folder `out` and return it.
 
     width/height: image size (intrinsics scale, field of view kept); frames: the first N frames
@@ -93,12 +97,19 @@ def simulate(preset: str, out: Path, *, width: int | None = None, height: int | 
     rendering processes (None: one per available core for long runs). Every frame's noise is
     seeded by its index and the exposure is fixed before the workers start, so the images do not
     depend on the number of workers.
+
+    effects: inspection footage's defects (effects.py): a profile name such as "cctv-h264", a YAML
+    file, a mapping or a CameraEffects; None takes the preset's default (none for the papers'
+    presets), "clean" none. Without effects the dataset is exactly what it was before effects existed.
     """
     out = Path(out)
     info = _info(preset)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise PipemapError("output already exists and is not empty; choose another --out", out)
+    fx = load_effects(effects) if effects is not None else None
     if info.build is None:
+        if fx is not None and not fx.clean:
+            raise PipemapError(f"preset {preset} writes its own images and takes no camera effects", key="effects")
         with result_folder(out) as tmp:
             info.writer(tmp, width=width, height=height, frames=frames, seed=seed, route=route, progress=progress)
         return out
@@ -107,9 +118,19 @@ def simulate(preset: str, out: Path, *, width: int | None = None, height: int | 
     if not isinstance(motion_blur, (int, np.integer)) or motion_blur < 1:
         raise PipemapError(f"motion blur takes a number of sub-frames >= 1, got {motion_blur!r}", key="motion_blur")
     setup = p.setup
+    if fx is None:
+        fx = load_effects(setup.effects)
     renderer = Renderer(setup.scene, setup.camera, setup.appearance, seed=int(seed))
     n = len(p)
     workers = _worker_count(workers, n)
+    if not fx.clean:
+        if motion_blur != 1:
+            raise PipemapError("camera effects blur with their shutter; leave motion_blur at 1", key="motion_blur")
+        from pipemap.sim.recording import write_footage
+
+        with result_folder(out) as tmp:
+            write_footage(tmp, preset, route, p, renderer, fx, int(seed), workers, progress)
+        return out
     with result_folder(out) as tmp:
         (tmp / "images").mkdir()
         (tmp / "ground_truth").mkdir()
@@ -119,29 +140,44 @@ def simulate(preset: str, out: Path, *, width: int | None = None, height: int | 
                 mean += img
             if progress is not None:
                 progress(i + 1, n)
-        doc = {
-            "format": "pipemap-dataset/1",
-            "name": f"{preset}" + (f"-{route}" if route else ""),
-            "images": "images/*.png",
-            "fps": float(setup.fps),
-            "camera": setup.camera.to_dict(),
-            "pipe": {"radius_m": float(setup.scene.radius)},
-        }
-        if mean is not None:
-            _write_gain_mask(tmp / "gain_mask.png", mean / n, setup.camera.width)
-            doc["gain_mask"] = "gain_mask.png"
-        (tmp / "dataset.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
-        write_tum(tmp / "ground_truth" / "poses.tum", p.trajectory,
-                  header=f"pipemap simulate {preset} seed {seed}: true T_wc, timestamp = index / fps")
-        save_network(tmp / "ground_truth" / "network.yaml", setup.scene.network(p.visits))
-        record = {
-            "preset": preset, "route": route, "seed": int(seed), "frames": n, "motion_blur": int(motion_blur),
-            "exposure": float(renderer.exposure), "drive": setup.drive.to_dict(),
-            "appearance": setup.appearance.to_dict(), "path_length_m": float(p.path.length),
-            "driven_m": [float(p.s[0]), float(p.s[-1])], "notes": setup.notes,
-        }
-        (tmp / "ground_truth" / "simulation.yaml").write_text(yaml.safe_dump(_plain(record), sort_keys=False))
+        _write_metadata(tmp, preset, route, int(seed), p, renderer, "images/*.png", p.trajectory,
+                        None if mean is None else mean / n, {"frames": n, "motion_blur": int(motion_blur)})
     return out
+
+
+def _write_metadata(tmp: Path, preset: str, route: str | None, seed: int, p: Plan, renderer: Renderer, images: str,
+                    trajectory: Trajectory, mean: np.ndarray | None, counts: dict, extra: dict | None = None,
+                    keys: dict | None = None) -> None:
+    """dataset.yaml (with the optional `keys`), gain_mask.png (from the mean image, when the preset
+    makes one), and ground_truth/: poses.tum (`trajectory`: the pose each written image shows),
+    network.yaml, simulation.yaml (with `extra`)."""
+    setup = p.setup
+    doc = {
+        # /2 only where a key of /2 is used, so that datasets without one stay as they were
+        "format": "pipemap-dataset/2" if keys else "pipemap-dataset/1",
+        "name": f"{preset}" + (f"-{route}" if route else ""),
+        "images": images,
+        "fps": float(setup.fps),
+        "camera": setup.camera.to_dict(),
+        "pipe": {"radius_m": float(setup.scene.radius)},
+        **(keys or {}),
+    }
+    if mean is not None:
+        _write_gain_mask(tmp / "gain_mask.png", mean, setup.camera.width)
+        doc["gain_mask"] = "gain_mask.png"
+    (tmp / "dataset.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    gaps = len(trajectory) > 1 and np.max(np.diff(trajectory.timestamps)) > 1.5 / setup.fps
+    clock = "the recording's time (gaps: dropped frames)" if gaps else "index / fps"
+    write_tum(tmp / "ground_truth" / "poses.tum", trajectory,
+              header=f"pipemap simulate {preset} seed {seed}: true T_wc, timestamp = {clock}")
+    save_network(tmp / "ground_truth" / "network.yaml", setup.scene.network(p.visits))
+    record = {
+        "preset": preset, "route": route, "seed": int(seed), **counts,
+        "exposure": float(renderer.exposure), "drive": setup.drive.to_dict(),
+        "appearance": setup.appearance.to_dict(), "path_length_m": float(p.path.length),
+        "driven_m": [float(p.s[0]), float(p.s[-1])], "notes": setup.notes, **(extra or {}),
+    }
+    (tmp / "ground_truth" / "simulation.yaml").write_text(yaml.safe_dump(_plain(record), sort_keys=False))
 
 
 def _worker_count(workers: int | None, n: int) -> int:
@@ -215,44 +251,6 @@ def _sub_poses(p: Plan, i: int, k: int):
 
 def _write_gain_mask(path: Path, mean: np.ndarray, width: int) -> None:
     save_gain_mask(path, smooth_mask(mean, GAIN_MASK_SIGMA_PX * width / 1024, path))
-
-
-class _PngWriter:
-    """Encodes and writes PNGs on a thread (OpenCV releases the GIL) while the next frame renders."""
-
-    def __init__(self, depth: int = 2):
-        self.q: queue.Queue = queue.Queue(maxsize=depth)
-        self.error: BaseException | None = None
-        self.thread = threading.Thread(target=self._run, daemon=True)
-
-    def __enter__(self):
-        self.thread.start()
-        return self
-
-    def _run(self):
-        while True:
-            item = self.q.get()
-            if item is None:
-                return
-            path, img = item
-            if self.error is None:
-                try:
-                    if not cv2.imwrite(str(path), img):
-                        raise PipemapError("cannot write image", path)
-                except BaseException as exc:  # handed to the main thread
-                    self.error = exc
-
-    def put(self, path: Path, img: np.ndarray) -> None:
-        if self.error is not None:
-            raise self.error
-        self.q.put((path, img))
-
-    def __exit__(self, exc_type, exc, tb):
-        self.q.put(None)
-        self.thread.join()
-        if exc_type is None and self.error is not None:
-            raise self.error
-        return False
 
 
 def wall_caster(preset: str, width: int, height: int, frames: int, seed: int, spacing_m: float | None = None):

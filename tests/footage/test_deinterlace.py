@@ -1,0 +1,67 @@
+"""De-interlacing: bob keeps the first field and rebuilds the other, blend is a [1, 2, 1] / 4 filter."""
+
+import numpy as np
+import pytest
+
+from footage_helpers import write_dataset, write_video
+from pipemap.dataset import load_dataset
+from pipemap.errors import PipemapError
+from pipemap.footage import deinterlace
+
+
+def interlaced(shift_px: float, h: int = 120, w: int = 160) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth picture whose bottom field was taken `shift_px` later (the camera moved right)."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    scene = lambda x: 128 + 60 * np.sin(x / 6.0) * np.cos(yy / 9.0)  # noqa: E731
+    first, second = scene(xx), scene(xx - shift_px)
+    frame = first.copy()
+    frame[1::2] = second[1::2]
+    return frame.astype(np.float32), first.astype(np.float32)
+
+
+def comb(img: np.ndarray) -> float:
+    """Mean jump between neighbouring lines beyond what the lines two apart say (combing)."""
+    return float(np.abs(img[1:-1] - 0.5 * (img[:-2] + img[2:])).mean())
+
+
+def test_bob_shows_the_first_field_alone():
+    frame, first = interlaced(6.0)
+    out = deinterlace(frame, "bob")
+    assert np.array_equal(out[0::2], frame[0::2])
+    np.testing.assert_allclose(out[1:-1:2], 0.5 * (frame[0:-2:2] + frame[2::2]))
+    np.testing.assert_array_equal(out[-1], frame[-2])  # the last line has only a neighbour above
+    assert comb(frame) > 20 * comb(out)
+    assert np.abs(frame - first).max() > 20 and np.abs(out - first)[2:-2].max() < 2.0  # the first instant
+
+
+def test_bob_keeps_the_bottom_field_when_it_comes_first():
+    frame, _ = interlaced(6.0)
+    out = deinterlace(frame, "bob", top_field_first=False)
+    assert np.array_equal(out[1::2], frame[1::2])
+    np.testing.assert_allclose(out[2::2], 0.5 * (frame[1:-1:2] + frame[3::2]))
+    np.testing.assert_array_equal(out[0], frame[1])
+
+
+def test_blend_is_a_vertical_1_2_1_filter():
+    frame, _ = interlaced(6.0)
+    out = deinterlace(frame, "blend")
+    np.testing.assert_allclose(out[1:-1], 0.25 * frame[:-2] + 0.5 * frame[1:-1] + 0.25 * frame[2:], atol=1e-4)
+    np.testing.assert_allclose(out[0], 0.5 * frame[0] + 0.5 * frame[1], atol=1e-4)  # mirrored at the border
+    assert comb(out) < 0.3 * comb(frame)
+    flat = np.full((48, 64), 77.0, np.float32)
+    assert np.array_equal(deinterlace(flat, "blend"), flat) and deinterlace(frame, "none") is frame
+
+
+def test_dataset_key_deinterlaces_every_frame(tmp_path):
+    frame, _ = interlaced(6.0)
+    images = [np.clip(frame, 0, 255).astype(np.uint8)] * 3
+    write_video(tmp_path / "run.avi", images, "mjpeg")
+    plain = load_dataset(write_dataset(tmp_path / "a", "../run.avi")).read(1).image
+    for method in ("bob", "blend"):
+        ds = load_dataset(write_dataset(tmp_path / method, "../run.avi", deinterlace=method))
+        assert ds.deinterlace == method
+        assert np.array_equal(ds.read(1).image, deinterlace(plain, method))
+        assert np.array_equal(next(ds.frames(start=1)).image, deinterlace(plain, method))
+    assert load_dataset(write_dataset(tmp_path / "off", "../run.avi", deinterlace=False)).deinterlace == "none"
+    with pytest.raises(PipemapError, match="dataset.yaml: deinterlace: expected one of none, bob, blend"):
+        load_dataset(write_dataset(tmp_path / "bad", "../run.avi", deinterlace="yadif"))
