@@ -25,10 +25,12 @@ import numpy as np
 from pipemap.config import DenseSettings, Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
+from pipemap.footage import FootageLog
+from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
 from pipemap.straight.mount import Mount, estimate_mount
 from pipemap.straight.registration import Shift, adaptive_full_search, hybrid, lucas_kanade
-from pipemap.straight.scale import pixels_per_metre
+from pipemap.straight.scale import row_pixels_per_metre
 from pipemap.straight.sparse_features import flatten_light
 from pipemap.straight.sparse_geometry import wall_distance
 from pipemap.straight.undistort import QUARTER, Rectifier, reduction_for_wall
@@ -109,12 +111,20 @@ def estimate_shifts(images: Iterable[np.ndarray], method: str, dense: DenseSetti
     return np.reshape(np.array(shifts, float), (-1, 2)), np.array(scores, float)
 
 
-def integrate(shifts: np.ndarray, zeta: float) -> np.ndarray:
-    """Camera centres (N, 3) in the first camera's frame: the camera moves against the image content."""
-    c = np.concatenate([np.zeros((1, 2)), np.cumsum(shifts, axis=0)])
+def integrate(shifts: np.ndarray, zeta) -> np.ndarray:
+    """Camera centres (N, 3) in the first camera's frame: the camera moves against the image content.
+    `zeta`: pixels per metre, one for all pairs or (N-1,) one per pair."""
+    steps = np.asarray(shifts, float) / np.reshape(np.asarray(zeta, float), (-1, 1))
+    c = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
     pos = np.zeros((len(c), 3))
-    pos[:, :2] = -c / zeta
+    pos[:, :2] = -c
     return pos
+
+
+def texture_weights(img: np.ndarray, rows) -> np.ndarray:
+    """Each registered row's weight in a fitted shift along the pipe: its sum of squared x-gradients."""
+    gx = cv2.Sobel(np.asarray(img, np.float32)[int(rows[0]):int(rows[1])], cv2.CV_32F, 1, 0, ksize=3)
+    return np.einsum("ij,ij->i", gx, gx).astype(float)
 
 
 class Stitcher:
@@ -154,12 +164,15 @@ class Stitcher:
 
 
 def _frames(dataset: Dataset, rect: Rectifier, counter: list, gain_correct: bool,
-            light_sigma_px: float | None = None, shown: list | None = None) -> Iterator[np.ndarray]:
+            light_sigma_px: float | None = None, shown: list | None = None,
+            log: FootageLog | None = None) -> Iterator[np.ndarray]:
     """The rectified frames to register; with light_sigma_px, each divided by its own blur
     (sparse_features.flatten_light): without a gain mask the LEDs' light is a pattern fixed in the image while
     the wall moves through it, and it holds the registration back towards no motion (5.5 % short at 50 deg).
-    `shown` gets the frame as it looks, for the stitched image."""
-    for frame in dataset.frames(gain_correct=gain_correct):
+    `shown` gets the frame as it looks, for the stitched image. Repeated frames (a stalled link) are skipped."""
+    for frame in dataset.frames(gain_correct=gain_correct, log=log):
+        if frame.repeated:
+            continue
         counter.append(frame.index)
         img = rect(frame.image)
         if shown is not None:
@@ -190,16 +203,22 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
     rect = Rectifier(dataset.camera, reduction, dataset.yaml_path, turn, dense.rectify_max_angle_deg)
     w, h = rect.size
     rows = band_rows(h, dense.band_fraction)
-    zeta, scale = _scale(dense, rect, dataset, mount, rows)
+    zeta, scale, row_zeta = _scale(dense, rect, dataset, mount, rows)
     source = scale["text"]
     total = len(dataset)
     stitch = Stitcher(rect.valid, dense.stitch_min_shift_px)
     indices: list[int] = []
-    running = {"c": np.zeros(2)}
+    running = {"c": np.zeros(2), "w": None}
     shown: list[np.ndarray] = []
+    pair_zeta: list[float] = []
 
     def on_frame(k: int, img: np.ndarray, t: np.ndarray) -> None:
         running["c"] = running["c"] + t
+        if row_zeta is not None:
+            if k > 0:
+                w = running["w"]
+                pair_zeta.append(float(w @ row_zeta / w.sum()) if w.sum() > 0 else zeta)
+            running["w"] = texture_weights(img, rows)
         stitch.add(-running["c"], shown[0])
         if progress is not None:
             progress(k + 1, total)
@@ -207,21 +226,23 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
     start = time.perf_counter()
     with result_folder(Path(out_dir)) as tmp:
         corrected = dense.gain_correct and dataset.has_gain_mask
+        log = FootageLog()
         frames = _frames(dataset, rect, indices, dense.gain_correct, None if corrected else dense.light_sigma_px,
-                         shown)
+                         shown, log)
         shifts, scores = estimate_shifts(frames, method, dense, rows, on_frame)
         t_reg = time.perf_counter() - start
         if len(indices) == 0:
             raise PipemapError("no images in the dataset", dataset.root)
-        pos = integrate(shifts, zeta)
+        pos = integrate(shifts, zeta if row_zeta is None else np.array(pair_zeta))
         idx = np.array(indices, int)
-        traj = Trajectory(idx / dataset.fps, pos, np.tile(rect.rotation, (len(idx), 1, 1)))  # camera -> virtual axes
+        traj = Trajectory(dataset.times()[idx], pos, np.tile(rect.rotation, (len(idx), 1, 1)))  # camera -> virtual axes
         t1 = time.perf_counter()
         write_tum(tmp / "trajectory.tum", traj, header=(
             f"pipemap dense VO ({method}): every frame's T_wc in metres; world = the first frame's camera turned "
             "square to the wall (x along the pipe, z towards the viewed wall)"))
-        lines = ["index,keyframe,label"] + [f"{i},1,straight" for i in idx]
-        atomic_write_text(tmp / "frames.csv", "\n".join(lines) + "\n")
+        labels = {int(i): "straight" for i in idx}
+        labels.update({i: "repeated" for i in log.repeated})
+        write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
         (tmp / "unrolled").mkdir()
         canvas, origin = stitch.render()
         atomic_write_bytes(tmp / "unrolled" / "dense_000.png", to_png(canvas))
@@ -267,6 +288,7 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
             "registered_rows": list(rows),
             "pipe_radius_m": dataset.radius_m,
             "frames": len(idx),
+            "footage": log.to_dict(),
             "keyframes": len(idx),
             "frames_per_second": len(idx) / max(t_reg, 1e-9),
             "distance_along_pipe_m": float(pos[-1, 0] - pos[0, 0]),
@@ -286,12 +308,14 @@ def _wall_distance(dense: DenseSettings, mount: Mount | None, radius: float) -> 
     return radius
 
 
-def _scale(dense: DenseSettings, rect: Rectifier, dataset: Dataset, mount: Mount | None, rows) -> tuple[float, dict]:
-    """zeta and where it came from: the reference (dense.pixels_per_metre), the offset measured on the robot
-    (dense.camera_offset_m), the estimated mount's offset, or the axis (the report's square camera, no offset)."""
+def _scale(dense: DenseSettings, rect: Rectifier, dataset: Dataset, mount: Mount | None, rows
+           ) -> tuple[float, dict, np.ndarray | None]:
+    """zeta, where it came from (the reference dense.pixels_per_metre, the offset measured on the robot
+    dense.camera_offset_m, the estimated mount's offset, or the axis: the report's square camera, no offset) and,
+    from geometry, each registered row's own zeta (scale.py)."""
     if dense.pixels_per_metre is not None:
         zeta = float(dense.pixels_per_metre)
-        return zeta, {"source": "reference", "text": "reference dense.pixels_per_metre"}
+        return zeta, {"source": "reference", "text": "reference dense.pixels_per_metre"}, None
     if dense.camera_offset_m is not None:
         offset, side, source = float(dense.camera_offset_m), 0.0, "given offset"
         text = f"given offset dense.camera_offset_m {offset * 1e3:.2f} mm"
@@ -307,7 +331,8 @@ def _scale(dense: DenseSettings, rect: Rectifier, dataset: Dataset, mount: Mount
     else:
         offset, side, source = 0.0, 0.0, "axis"
         text = "camera assumed on the pipe axis"
-    zeta = pixels_per_metre(rect.focal_px, rect.K[1, 2], dataset.radius_m, offset, rows, side)
-    return zeta, {"source": source, "offset_m": offset, "side_m": side,
+    row_zeta = row_pixels_per_metre(rect.focal_px, rect.K[1, 2], dataset.radius_m, offset, rows, side)
+    zeta = float(np.mean(row_zeta))
+    return zeta, {"source": source, "offset_m": offset, "side_m": side, "rows": "weighted by their texture, pair by pair",
                   "text": f"{text} (rectified focal {rect.focal_px:.3f} px, radius {dataset.radius_m} m, rows "
-                          f"{rows[0]}..{rows[1]})"}
+                          f"{rows[0]}..{rows[1]} weighted by their texture)"}, row_zeta

@@ -99,6 +99,8 @@ def estimate_mount(dataset: Dataset, settings: Settings, gain_correct: bool = Tr
     most = max(sp.offset_batch_keyframes, sp.offset_long_keyframes)  # every batch has run by then
     n = 0
     for frame in dataset.frames(gain_correct=gain_correct):
+        if frame.repeated:
+            continue
         for link in selector.push(frame.index, frame.image):
             odometry.add(link, refine=False)
         n += 1

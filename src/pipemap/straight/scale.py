@@ -15,7 +15,11 @@ image x runs along the pipe:
   not curve along x, so an axial move dh shifts row v by f dh / z(v);
 - zeta is the mean of f / z(v) over the rows the registration compares (the report's "mean
   pixel per metre" over its target), so the curvature of the wall inside the band is accounted
-  for to first order. At the principal point it is f / (r - offset_m).
+  for to first order. At the principal point it is f / (r - offset_m);
+- rows do not count alike in a registration: a uniform shift fitted to rows that move by
+  different amounts is their mean weighted by each row's texture (its squared x-gradients, the
+  weights of the Lucas-Kanade normal equations), so the dense methods weigh `row_pixels_per_metre`
+  the same way, pair by pair (a texture concentrated on the near rows would read as faster motion).
 """
 
 from __future__ import annotations
@@ -35,13 +39,19 @@ def wall_depth(v_norm: np.ndarray, radius_m: float, offset_m: float, side_m: flo
     return lam
 
 
-def pixels_per_metre(focal_px: float, cy: float, radius_m: float, offset_m: float = 0.0, rows=None,
-                     side_m: float = 0.0) -> float:
-    """zeta: mean f / z(v) over the pixel rows [rows[0], rows[1]) (just the principal point when rows is None)."""
+def row_pixels_per_metre(focal_px: float, cy: float, radius_m: float, offset_m: float = 0.0, rows=None,
+                         side_m: float = 0.0) -> np.ndarray:
+    """f / z(v) of each pixel row in [rows[0], rows[1]) (just the principal point's when rows is None)."""
     if not radius_m > 0:
         raise PipemapError(f"the pipe radius must be positive, got {radius_m}", key="pipe.radius_m")
     if not np.hypot(offset_m, side_m) < radius_m:
         raise PipemapError(f"the camera offset {np.hypot(offset_m, side_m):g} m puts the camera outside the pipe of "
                            f"radius {radius_m} m", key="camera_offset_m")
-    v = np.array([(cy - cy) / focal_px]) if rows is None else (np.arange(int(rows[0]), int(rows[1])) - cy) / focal_px
-    return float(np.mean(focal_px / wall_depth(v, radius_m, offset_m, side_m)))
+    v = np.zeros(1) if rows is None else (np.arange(int(rows[0]), int(rows[1])) - cy) / focal_px
+    return focal_px / wall_depth(v, radius_m, offset_m, side_m)
+
+
+def pixels_per_metre(focal_px: float, cy: float, radius_m: float, offset_m: float = 0.0, rows=None,
+                     side_m: float = 0.0) -> float:
+    """zeta: mean f / z(v) over the pixel rows [rows[0], rows[1]) (just the principal point when rows is None)."""
+    return float(np.mean(row_pixels_per_metre(focal_px, cy, radius_m, offset_m, rows, side_m)))

@@ -25,6 +25,8 @@ from pipemap.camera.pinhole import PinholeCamera
 from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
+from pipemap.footage import FootageLog
+from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
 from pipemap.straight.mount import Mount
 from pipemap.straight.sparse_geometry import E_H
@@ -92,7 +94,11 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         odometry = SparseOdometry(camera, radius, sp, settings.seed)
         t_features = t_motion = 0.0
         n = 0
-        for frame in dataset.frames(gain_correct=sp.gain_correct):
+        log, read = FootageLog(), []
+        for frame in dataset.frames(gain_correct=sp.gain_correct, log=log):
+            if frame.repeated:  # a stalled link's copy: nothing new, and no keyframe can come of it
+                continue
+            read.append(frame.index)
             t0 = time.perf_counter()
             links = list(selector.push(frame.index, frame.image))
             t1 = time.perf_counter()
@@ -115,7 +121,7 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         t_motion += time.perf_counter() - t1
         idx, R, C = odometry.poses()
         Rw, Cw = to_first_camera(R, C)
-        traj = Trajectory(idx / dataset.fps, Cw, Rw)
+        traj = Trajectory(dataset.times()[idx], Cw, Rw)
 
         t2 = time.perf_counter()
         wall = _unrolled(dataset, camera, radius, idx, R, C, sp)
@@ -127,10 +133,9 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         write_tum(tmp / "trajectory.tum", traj, header=(
             "pipemap sparse VO (sparse-cylinder): every keyframe's T_wc in metres; world = first keyframe's camera "
             f"frame; pipe axis through {_fmt(axis_origin)} along {_fmt(axis_dir)}"))
-        is_key = np.zeros(n, bool)
-        is_key[idx] = True
-        lines = ["index,keyframe,label"] + [f"{i},{int(k)},straight" for i, k in enumerate(is_key)]
-        atomic_write_text(tmp / "frames.csv", "\n".join(lines) + "\n")
+        labels = {i: "straight" for i in read}
+        labels.update({i: "repeated" for i in log.repeated})
+        write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
         (tmp / "unrolled").mkdir()
         atomic_write_bytes(tmp / "unrolled" / "sparse_000.png", to_png(wall.image))
         atomic_write_text(tmp / "unrolled" / "sparse_000.json",
@@ -152,6 +157,7 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
             "gain_corrected": bool(sp.gain_correct and dataset.has_gain_mask),
             "pipe_radius_m": radius,
             "frames": n,
+            "footage": log.to_dict(),
             "keyframes": len(idx),
             "frames_per_second": n / max(t_features + t_motion, 1e-9),
             "camera_offset_m": {"C_X": float(offset[0]), "C_Y": float(offset[1]),
