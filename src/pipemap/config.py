@@ -42,7 +42,19 @@ class FrontendSettings(_Section):
         "rest can shrink while the camera moves on: at 0.5 the keyframe came when the new one shared 10-20 % of its "
         "tracks with scene points and the scale slipped by 10 %; at 0.7 a burst of lost tracks still left too few "
         "across one step (cctv-loop at 720x576: a side 0.9 % short); the fisheye's keyframes come by flow first")
-    # What the paper leaves open: measured on renders at 640x480, also used at 1280x960.
+    # What the paper leaves open: measured on renders at 640x480.
+    reference_px_per_deg: float | None = Field(
+        2.53, gt=0, description="pixel density (px per degree at the image centre) at which the sizes and "
+        "thresholds in px of the front end and the classification are given: the fisheye paper's 190 deg camera "
+        "at 640x480. A camera of another density gets them scaled by its density over this (frontend/angular.py): "
+        "template footprints, ZNCC patches, search radii, flow and keyframe thresholds, the Harris scale, the "
+        "lighting scale, the classification's sub-sampling; run.json lists the values used. None: px as given")
+    harris_block_px: int = Field(3, ge=3, description="Harris integration window (px, odd)")
+    static_mask_frames: int = Field(40, ge=0, description="frames spread over the recording in which pixels that do "
+                                    "not move with the wall (burned-in text, logos, lens dirt, the robot's parts) "
+                                    "are looked for and masked (frontend/static_mask.py); 0: off")
+    static_mask_max_fraction: float = Field(0.3, gt=0, le=1, description="a static mask covering more of the image "
+                                            "than this is not used (the robot barely moved in the frames sampled)")
     min_distance_px: int = Field(3, ge=1, description="non-maximum suppression radius of Harris corners")
     harris_quality: float = Field(0.001, ge=0, lt=1, description="corners weaker than this x the region's strongest are dropped")
     min_similarity: float = Field(0.5, ge=-1, le=1, description="smallest cosine similarity of a descriptor match")
@@ -58,7 +70,7 @@ class FrontendSettings(_Section):
     duplicate_px: float = Field(2.0, ge=0, description="an unmatched corner this close to a guided match is dropped")
     max_lost_frames: int = Field(5, gt=0, description="after this many untracked frames, start again from a new keyframe")
     flatten_lighting: bool = Field(True, description="detect, describe and correlate on log(I) minus its local mean")
-    lighting_sigma_px: float = Field(4.0, gt=0, description="scale of the local mean removed with the lighting (px at 640 wide)")
+    lighting_sigma_px: float = Field(4.0, gt=0, description="scale of the local mean removed with the lighting (px)")
     dark_level: float = Field(12.0, ge=0, description="no features where the local mean grey level is below this")
     contrast_limit: float = Field(16.0, ge=0, description="soft limit of the flattened image (64 x log units): "
                                   "rims of dark openings no longer outscore the wall's corners (0: off)")
@@ -81,7 +93,8 @@ class FrontendSettings(_Section):
 class ClassificationSettings(_Section):
     """Straight vs T-intersection image classification (fisheye paper III-B)."""
 
-    subsample: int = Field(2, gt=0, description="keep every n-th row and column")
+    subsample: int = Field(2, gt=0, description="keep every n-th row and column (at frontend.reference_px_per_deg; "
+                           "scaled with the camera's pixel density)")
     dark_threshold: float = Field(
         0.25, gt=0, lt=1, description="dark blobs: below this fraction of the 1st..99th percentile grey range")
     erosion_px: int = Field(2, ge=0, description="erosion radius in sub-sampled pixels")
@@ -133,7 +146,10 @@ class StraightVOSettings(_Section):
     scale_drift: float | None = Field(0.02, gt=0, description="a window solves early once the median radius of the "
                                       "points triangulated since the last solve differs from the pipe's by this "
                                       "fraction (None: only every bundle.step keyframes): a camera looking along the "
-                                      "pipe can let the chained scale slip by tenths within 50 keyframes")
+                                      "pipe can let the chained scale slip by tenths within 50 keyframes. Only for "
+                                      "a camera that does not see the wall beside it (widest colatitude below 90 "
+                                      "deg): a fisheye's chained scale holds, and on compressed footage the noise of "
+                                      "its fresh points set the check off every few keyframes and shrank the run")
     min_window_points: int = Field(30, gt=0, description="fewer points: no window solve")
     min_window_keyframes: int = Field(3, gt=1)
     max_colatitude_deg: float | None = Field(70.0, gt=0, le=180, description="window observations beyond this angle "
@@ -160,7 +176,7 @@ class LoopClosureSettings(_Section):
                                        "differ by less than this")
     # Relative pose of a pair (what the paper leaves open).
     match_ratio: float = Field(0.8, gt=0, le=1, description="SIFT nearest / second-nearest distance ratio, both ways")
-    sift_size_px: float = Field(8.0, gt=0, description="SIFT keypoint size at 640 px wide (scales with the width)")
+    sift_size_px: float = Field(8.0, gt=0, description="SIFT keypoint size (px at frontend.reference_px_per_deg, scaled like the front end's sizes)")
     min_inliers: int = Field(20, gt=5, description="fewer matches agreeing with the metric pose: no edge")
     wall_window_radii: float = Field(2.5, gt=0, description="wall points within this many radii along the pipe "
                                      "of the camera carry the metric scale")
@@ -186,6 +202,9 @@ class AppearanceSettings(_Section):
     edge_taper_deg: float = Field(5.0, ge=0, description="samples are weighted up from 0 over this many degrees inside "
                                   "either colatitude limit, so that keyframe band edges leave no seams (0: plain mean)")
     unrolled_px_m: float = Field(0.002, gt=0, description="metres per pixel of unrolled wall images")
+    exposure_normalise: bool = Field(True, description="divide each keyframe image by its median grey level in the "
+                                     "band before sampling, so that auto-exposure steps and drift leave no bands "
+                                     "(mapping/exposure.py)")
 
 
 class DenseSettings(_Section):

@@ -33,7 +33,10 @@ from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
 from pipemap.frontend import FeatureTracker
+from pipemap.frontend.angular import classification_for, scaled_settings
+from pipemap.footage import FootageLog
 from pipemap.frontend.classification import SequenceClass, SequenceClassifier
+from pipemap.frontend.usable import UsableMask, usable_mask
 from pipemap.frontend.tracks import Keyframe
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.geometry.bend import OFFSET_SIGMA_M
@@ -47,8 +50,10 @@ from pipemap.view import check_wall_in_view
 class FrontEndResult:
     keyframes: list[Keyframe]
     classes: SequenceClass
-    image_count: int
+    image_count: int  # frames tracked (repeated frames are skipped)
     seconds: dict
+    footage: FootageLog = field(default_factory=FootageLog)  # repeated, dropped and damaged frames
+    mask: UsableMask | None = None  # the pixels that move with the wall
 
 
 @dataclass
@@ -81,15 +86,20 @@ def track_and_classify(dataset: Dataset, settings: Settings,
     Reading, classifying and feature extraction of the next frame run on a second thread while
     the current one is matched (OpenCV and numpy release the GIL there); both follow frame order,
     so the result is the same as one thread's."""
-    tracker = FeatureTracker(dataset.camera, settings.frontend, settings.seed)
-    classifier = SequenceClassifier(dataset.camera, settings.classification)
+    mask = usable_mask(dataset, settings)
+    tracker = FeatureTracker(dataset.camera, settings.frontend, settings.seed, mask.usable)
+    classifier = SequenceClassifier(dataset.camera, classification_for(dataset.camera, settings.classification,
+                                                                     settings.frontend.reference_px_per_deg),
+                                    mask.usable)
     total = len(dataset)
     keyframes: list[Keyframe] = []
     done = 0
     timing = {"read": 0.0, "classification": 0.0, "extract": 0.0}
     start = time.perf_counter()
 
-    frames = iter(dataset.frames())
+    log = FootageLog()
+    # a repeated frame (a stalled link) shows nothing new: tracked, it would be a stop of the robot
+    frames = (f for f in dataset.frames(log=log) if not f.repeated)
 
     def prepare():
         """The next frame, read, classified and its features extracted (None at the end)."""
@@ -126,7 +136,7 @@ def track_and_classify(dataset: Dataset, settings: Settings,
     # frontend: the stage's wall time; read/classification/extract ran beside it on the second thread.
     seconds = {"frontend": wall, "read": timing["read"], "classification": timing["classification"],
                "extract": timing["extract"]}
-    return FrontEndResult(keyframes, classifier.result(), done, seconds)
+    return FrontEndResult(keyframes, classifier.result(), done, seconds, log, mask)
 
 
 def keyframe_labels(keyframes: list[Keyframe], classes: SequenceClass) -> np.ndarray:
@@ -200,14 +210,15 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
     """trajectory.tum, junctions.yaml, sparse.ply, frames.csv and run.json into `folder`."""
     t0 = time.perf_counter()
     result = net.straight
-    traj = Trajectory.from_matrices(result.indices / dataset.fps, result.poses)
+    traj = Trajectory.from_matrices(dataset.times()[result.indices], result.poses)
     write_tum(folder / "trajectory.tum", traj,
               header="pipemap fisheye VO: keyframe T_wc in metres, world = first keyframe's camera")
     write_junctions(folder / "junctions.yaml", net.tees)
     write_sparse_ply(folder / "sparse.ply", result.points)
     classes = front.classes
-    labels = classes.labels if len(classes.indices) == front.image_count else None
-    write_frames_csv(folder / "frames.csv", front.image_count, result.indices.tolist(), labels)
+    labels = dict(zip(np.asarray(classes.indices).tolist(), classes.labels))
+    labels.update({i: "repeated" for i in front.footage.repeated})
+    write_frames_csv(folder / "frames.csv", len(dataset), result.indices.tolist(), labels)
     seconds = dict(seconds)
     seconds["write"] = time.perf_counter() - t0
     from pipemap import __version__
@@ -221,8 +232,11 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
         "stage": "run",
         "input": str(dataset.root),
         "settings": settings.to_dict(),
+        "frontend_pixels": scaled_settings(dataset.camera, settings.frontend),
         "pipe_radius_m": dataset.radius_m,
         "frames": front.image_count,
+        "footage": front.footage.to_dict(),
+        "mask": None if front.mask is None else front.mask.to_dict(),
         "keyframes": len(result.indices),
         "points": len(result.points),
         "lost_keyframes": sum(1 for s in result.sections[1:] if not s.linked),
@@ -273,7 +287,8 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
         if settings.appearance.enabled and net.wall_pieces:
             stage("appearance")
             maps = write_maps(tmp, dataset, net.straight.indices, net.straight.poses,
-                              [WallPiece.from_dict(d) for d in net.wall_pieces], settings)
+                              [WallPiece.from_dict(d) for d in net.wall_pieces], settings,
+                              usable=None if front.mask is None else front.mask.usable)
         stage("writing")
         seconds = dict(front.seconds)
         seconds.update(net.seconds)

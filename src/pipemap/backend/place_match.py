@@ -30,7 +30,7 @@ from pipemap.camera import CameraModel
 from pipemap.config import Settings
 from pipemap.frontend.harris import detect_corners, flatten_lighting, valid_mask
 from pipemap.frontend.relpose import estimate_relative_pose
-from pipemap.frontend.tracker import pixel_angle
+from pipemap.frontend.angular import frontend_for, pixel_angle, pixel_scale
 from pipemap.geometry.cylinder import Cylinder
 from pipemap.geometry.rotations import skew
 from pipemap.geometry.se3 import camera_point_jacobian, retract, to_matrix, world_to_camera
@@ -65,19 +65,18 @@ def place_features(camera: CameraModel, image: np.ndarray, settings: Settings) -
     """
     if np.shape(image)[:2] != (camera.height, camera.width):
         raise ValueError(f"image of shape {np.shape(image)} does not fit the {camera.width}x{camera.height} camera")
-    s = settings.frontend
+    s = frontend_for(camera, settings.frontend)
     lc = settings.loop_closure
-    scale = camera.width / 640.0
-    size = lc.sift_size_px * scale
+    size = lc.sift_size_px * pixel_scale(camera, settings.frontend.reference_px_per_deg)
     # The descriptor window reaches about 3 keypoint sizes out; keep it inside the image circle.
     margin = int(np.ceil(3.0 * size)) + 1
     img = np.ascontiguousarray(image, dtype=np.float32)
     mask = valid_mask(camera, margin)
     if s.flatten_lighting:
-        img, lit = flatten_lighting(img, s.lighting_sigma_px * scale, s.dark_level, contrast_limit=s.contrast_limit)
+        img, lit = flatten_lighting(img, s.lighting_sigma_px, s.dark_level, contrast_limit=s.contrast_limit)
         mask = mask & lit
         img = img + 128.0
-    points, _ = detect_corners(img, mask, tuple(s.regions), s.corners_per_region, s.harris_k,
+    points, _ = detect_corners(img, mask, tuple(s.regions), s.corners_per_region, s.harris_k, s.harris_block_px,
                                min_distance_px=s.min_distance_px, quality=s.harris_quality)
     if len(points) == 0:
         return PlaceFeatures(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 128), np.float32))

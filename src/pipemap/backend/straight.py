@@ -45,7 +45,7 @@ from pipemap.backend.resection import resect
 from pipemap.backend.triangulate import triangulate_rays
 from pipemap.camera.base import CameraModel
 from pipemap.config import Settings
-from pipemap.frontend.tracker import pixel_angle
+from pipemap.frontend.angular import pixel_angle
 from pipemap.frontend.tracks import Keyframe
 from pipemap.geometry.cylinder import fit_cylinder
 from pipemap.geometry.se3 import world_to_camera
@@ -133,6 +133,8 @@ class StraightVO:
         self._min_cos = -1.0 if m is None else float(np.cos(np.radians(m)))
         self._t_rel = 0.0
         self._t_win = 0.0
+        # the chained scale slips only where the camera cannot see the wall beside it (config: scale_drift)
+        self._drift_check = self.s.scale_drift is not None and camera.view_colatitudes()[1] < np.pi / 2
         self._resected = False  # the newest keyframe's pose was refined against its scene points (or resection is off)
         self._wall = None  # the current section's wall as its last window solve left it
         self._fresh: list[np.ndarray] = []  # points triangulated since then
@@ -300,7 +302,7 @@ class StraightVO:
         slip is small enough for its cylinder fit to keep those points."""
         # A keyframe that sees few scene points (its pose chained, not resected) would end the window
         # loosely held: wait for one that the scene fixes.
-        if (self._wall is None or self.s.scale_drift is None or self.section.kind != "straight"
+        if (self._wall is None or not self._drift_check or self.section.kind != "straight"
                 or len(self._fresh) < self.s.min_window_keyframes or not self._resected):
             return False
         # the newest keyframes' points, enough of them for a median: the slip shows there first

@@ -155,24 +155,27 @@ def _percentiles(values: np.ndarray, qs: tuple[float, ...]) -> np.ndarray:
     return np.searchsorted(hist, np.asarray(qs) / 100.0 * hist[-1]).astype(np.float64)
 
 
-def classify_frame(image: np.ndarray, camera: CameraModel, settings: ClassificationSettings | None = None) -> FrameClass:
-    """Classify one grey image (float or integer, 0..255 scale) as straight or junction."""
+def classify_frame(image: np.ndarray, camera: CameraModel, settings: ClassificationSettings | None = None,
+                   usable: np.ndarray | None = None) -> FrameClass:
+    """Classify one grey image (float or integer, 0..255 scale) as straight or junction. `usable`: (H, W) bool,
+    the pixels that show the wall (an overlay's are neither dark nor counted in the grey range)."""
     s = settings or ClassificationSettings()
     img = np.asarray(image)
     if img.shape != (camera.height, camera.width):
         raise ValueError(f"image of shape {img.shape}, the camera is {camera.width}x{camera.height}")
     geo = _geometry(camera, s.subsample)
     sub = np.ascontiguousarray(img[:: s.subsample, :: s.subsample], dtype=np.float32)
-    inside = sub[geo.valid]
+    seen = geo.valid if usable is None else geo.valid & usable[:: s.subsample, :: s.subsample]
+    inside = sub[seen]
     if inside.size == 0:
         return FrameClass(JUNCTION, float("inf"), None, float("nan"), float("nan"))
     lo, hi = _percentiles(inside, (1.0, 99.0))
     level = lo + s.dark_threshold * (hi - lo)
-    fov_rings = _fov_rings(geo, inside, level)
+    fov_rings = _fov_rings(geo, geo.ring_of_valid if usable is None else geo.ring[seen], inside, level)
     fov_deg = fov_rings * _RING_DEG
     if hi - lo < 1.0:  # no grey range (black, saturated, blank): nothing to see
         return FrameClass(JUNCTION, float("inf"), None, float(level), fov_deg)
-    dark = ((sub < level) & (geo.ring >= 0) & (geo.ring < fov_rings)).astype(np.uint8)
+    dark = ((sub < level) & (geo.ring >= 0) & (geo.ring < fov_rings) & seen).astype(np.uint8)
     if s.erosion_px > 0:
         k = 2 * s.erosion_px + 1
         dark = cv2.erode(dark, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
@@ -195,11 +198,16 @@ def classify_frame(image: np.ndarray, camera: CameraModel, settings: Classificat
     return FrameClass(label, float(ratio), blob, float(level), fov_deg)
 
 
-def _fov_rings(geo: _Geometry, inside: np.ndarray, level: float) -> int:
+def _fov_rings(geo: _Geometry, rings: np.ndarray, inside: np.ndarray, level: float) -> int:
     """Number of colatitude rings in the used field of view: outwards from the brightest ring,
-    up to the first ring whose mean grey level is below `level` (the dark rim of the lens)."""
-    ring_mean = np.bincount(geo.ring_of_valid, weights=inside, minlength=geo.n_rings) / np.maximum(geo.ring_count, 1)
-    brightest = int(np.argmax(ring_mean))
+    up to the first ring whose mean grey level is below `level` (the dark rim of the lens).
+    `rings`: the ring of each grey level in `inside`."""
+    count = geo.ring_count if rings is geo.ring_of_valid else np.bincount(rings, minlength=geo.n_rings)
+    total = np.bincount(rings, weights=inside, minlength=geo.n_rings)
+    ring_mean = np.where(count > 0, total / np.maximum(count, 1), np.nan)  # a ring the mask hides says nothing
+    if not np.isfinite(ring_mean).any():
+        return geo.n_rings
+    brightest = int(np.nanargmax(ring_mean))
     dark_rings = np.flatnonzero(ring_mean[brightest:] < level)
     return int(brightest + dark_rings[0]) if dark_rings.size else geo.n_rings
 
@@ -233,14 +241,15 @@ def junction_clusters(indices, junction) -> list[tuple[int, int]]:
 class SequenceClassifier:
     """Streaming form of classify_sequence: `add` each frame in time order, then `result`."""
 
-    def __init__(self, camera: CameraModel, settings: ClassificationSettings | None = None):
-        self.camera, self.s = camera, settings or ClassificationSettings()
+    def __init__(self, camera: CameraModel, settings: ClassificationSettings | None = None,
+                 usable: np.ndarray | None = None):
+        self.camera, self.s, self.usable = camera, settings or ClassificationSettings(), usable
         self.indices: list[int] = []
         self.ratios: list[float] = []
         self.raw: list[bool] = []
 
     def add(self, frame: Frame) -> FrameClass:
-        fc = classify_frame(frame.image, self.camera, self.s)
+        fc = classify_frame(frame.image, self.camera, self.s, self.usable)
         self.indices.append(frame.index)
         self.ratios.append(fc.ratio)
         self.raw.append(fc.is_junction)

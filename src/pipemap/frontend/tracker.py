@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from pipemap.camera import CameraModel
 from pipemap.config import FrontendSettings
 from pipemap.dataset import Frame
+from pipemap.frontend.angular import frontend_for, pixel_angle
 from pipemap.frontend.anchor import Anchors, anchor_templates, refine_to_anchors
 from pipemap.frontend.descriptors import describe, match_descriptors, smooth_for_templates
 from pipemap.frontend.flow import local_quadratic_motion
@@ -63,23 +64,21 @@ class _Match:
     tracked_fraction: float
 
 
-def pixel_angle(camera: CameraModel) -> float:
-    """Angle (radians) subtended by one pixel at the principal point's neighbourhood of the image centre."""
-    c = np.array([[camera.width / 2.0, camera.height / 2.0], [camera.width / 2.0 + 1.0, camera.height / 2.0]])
-    b, _ = camera.unproject(c)
-    return float(np.arccos(np.clip(b[0] @ b[1], -1.0, 1.0)))
-
-
 class FeatureTracker:
     """Feed frames in order with `process`; call `finish` at the end. Both return new keyframes."""
 
-    def __init__(self, camera: CameraModel, settings: FrontendSettings | None = None, seed: int = 0):
+    def __init__(self, camera: CameraModel, settings: FrontendSettings | None = None, seed: int = 0,
+                 usable: np.ndarray | None = None):
+        """`usable`: (H, W) bool, the pixels that show the wall (frontend/usable.py); None: all of the image."""
         self.camera = camera
-        self.s = settings or FrontendSettings()
+        self.s = frontend_for(camera, settings or FrontendSettings())
         self.seed = seed
         margin = max(self.s.template_window, self.s.zncc_patch) // 2 + 1
         self.mask = valid_mask(camera, margin)
         self.bearing_map, self.valid = bearing_map(camera)
+        if usable is not None:
+            self.mask = self.mask & usable.astype(np.uint8)
+            self.valid = self.valid & usable  # guided matches land only on the wall
         self.threshold = max(np.radians(self.s.ransac_angle_deg), self.s.ransac_threshold_px * pixel_angle(camera))
         self.ids = TrackIds()
         self.keyframes: list[Keyframe] = []
@@ -95,11 +94,10 @@ class FeatureTracker:
         image = np.ascontiguousarray(frame.image, dtype=np.float32)
         mask = self.mask
         if s.flatten_lighting:
-            sigma = s.lighting_sigma_px * self.camera.width / 640.0
-            image, lit = flatten_lighting(image, sigma, s.dark_level, contrast_limit=s.contrast_limit)
+            image, lit = flatten_lighting(image, s.lighting_sigma_px, s.dark_level, contrast_limit=s.contrast_limit)
             mask = mask & lit
-        points, _ = detect_corners(image, mask, tuple(s.regions), s.corners_per_region, s.harris_k,
-                                   min_distance_px=self.s.min_distance_px, quality=self.s.harris_quality)
+        points, _ = detect_corners(image, mask, tuple(s.regions), s.corners_per_region, s.harris_k, s.harris_block_px,
+                                   min_distance_px=s.min_distance_px, quality=s.harris_quality)
         smoothed = smooth_for_templates(image, s.template_size, s.template_window)
         desc, usable = describe(smoothed, points, s.template_size, s.template_window)
         points, desc = points[usable], desc[usable]

@@ -30,10 +30,15 @@ from pipemap.output import atomic_write_text
 TRACKS_HEADER = ["track_id", "keyframe", "index", "u", "v", "guided"]
 
 
-def write_frames_csv(path: Path, image_count: int, keyframe_indices, labels: list[str] | None = None) -> None:
+def write_frames_csv(path: Path, image_count: int, keyframe_indices, labels=None) -> None:
+    """One row per frame of the recording. `labels`: a list (one per frame) or a mapping index -> label;
+    frames it does not name were not read (damaged: `unreadable`); None: all `straight`."""
     is_key = np.zeros(image_count, int)
     is_key[np.asarray(list(keyframe_indices), int)] = 1
-    labels = labels or ["straight"] * image_count
+    if labels is None:
+        labels = ["straight"] * image_count
+    elif isinstance(labels, dict):
+        labels = [labels.get(i, "unreadable") for i in range(image_count)]
     lines = ["index,keyframe,label"] + [f"{i},{is_key[i]},{labels[i]}" for i in range(image_count)]
     atomic_write_text(Path(path), "\n".join(lines) + "\n")
 

@@ -33,6 +33,7 @@ from pipemap.config import AppearanceSettings
 from pipemap.dataset import Dataset, Frame
 from pipemap.errors import PipemapError
 from pipemap.geometry.se3 import as_rt
+from pipemap.mapping.exposure import ExposureLevels
 from pipemap.mapping.wall import (
     INSIDE_MARGIN_SPACINGS,
     WallGrid,
@@ -51,7 +52,8 @@ from pipemap.output import atomic_write_bytes
 # (down the next pipe from a tee), where one pixel covers centimetres and would blur the map.
 REACH_RADII = 2.0
 REACH_TAPER = 0.25  # fraction of the reach over which samples fade out (with edge_taper_deg > 0)
-_REMAP_WIDTH = 1024  # cv2.remap maps are kept 2-D and below its 32767 size limit
+_REMAP_WIDTH = 1024
+LIGHT_FIELD_FRAMES = 40  # keyframes spread along the run whose median is the light field (exposure.py)  # cv2.remap maps are kept 2-D and below its 32767 size limit
 
 
 @dataclass
@@ -76,7 +78,7 @@ class PieceMap:
     def intensity(self) -> np.ndarray:
         """(H, W) float32 mean grey level, NaN where unseen or not wall."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = (self.total / self.weight).astype(np.float32)
+            out = np.minimum(self.total / self.weight, 255.0).astype(np.float32)  # exposure-normalised: can pass 255
         out[~self.seen] = np.nan
         return out
 
@@ -89,6 +91,7 @@ class AppearanceMap:
     samples: int  # of which inside the colatitude band, the image and in sight
     seconds: float
     settings: AppearanceSettings = field(default_factory=AppearanceSettings)
+    exposure: dict | None = None  # the keyframes' exposure levels (exposure.py), when normalised
 
     @property
     def points_per_second(self) -> float:
@@ -128,12 +131,14 @@ def colatitude_band(settings: AppearanceSettings, camera) -> tuple[float, float]
 
 def build_appearance(dataset: Dataset, keyframe_indices, poses_T_wc, pieces: list[WallPiece],
                      settings: AppearanceSettings | None = None,
-                     progress: Callable[[int, int], None] | None = None) -> AppearanceMap:
+                     progress: Callable[[int, int], None] | None = None,
+                     usable: np.ndarray | None = None) -> AppearanceMap:
     """The appearance map of `pieces` from the keyframe images `keyframe_indices` (image indices of
     `dataset`) at the poses `poses_T_wc` ((K, 4, 4) or an (R, t) pair, same order). Each keyframe
-    image is read once; progress(done, total) after each."""
+    image is read once; progress(done, total) after each. `usable`: (H, W) bool, the pixels that show
+    the wall (an overlay's are not sampled); None: all."""
     settings = settings or AppearanceSettings()
-    colatitude_band(settings, dataset.camera)
+    band = colatitude_band(settings, dataset.camera)
     start = time.perf_counter()
     idx = np.asarray(keyframe_indices, dtype=np.int64).reshape(-1)
     R, t = as_rt(poses_T_wc)
@@ -148,16 +153,27 @@ def build_appearance(dataset: Dataset, keyframe_indices, poses_T_wc, pieces: lis
     grids = [wall_grid(p, settings.spacing_m) for p in pieces]
     maps = [PieceMap(g, opening_mask(g, pieces, margin), np.zeros(g.shape), np.zeros(g.shape),
                      np.zeros(g.shape, np.int32)) for g in grids]
-    sampler = _KeyframeSampler(dataset.camera, pieces, settings)
+    sampler = _KeyframeSampler(dataset.camera, pieces, settings, usable)
     order = np.argsort(idx, kind="stable")
+    exposure = None
+    if settings.exposure_normalise:
+        spread = np.unique(idx[order][np.linspace(0, len(idx) - 1, min(len(idx), LIGHT_FIELD_FRAMES)).astype(int)]) \
+            if len(idx) else idx
+        exposure = ExposureLevels(dataset.camera, band, usable)
+        exposure.use_light(exposure.light_field(f.image for f, _ in _frames_at(dataset, spread, np.arange(len(spread)))))
     done = 0
     for frame, k in _frames_at(dataset, idx[order], order):
+        image = frame.image if exposure is None else exposure.normalise(frame.image)
         for pm in maps:
-            sampler.accumulate(pm, frame.image, R[k], t[k])
+            sampler.accumulate(pm, image, R[k], t[k])
         done += 1
         if progress is not None:
             progress(done, len(idx))
-    return AppearanceMap(maps, done, sampler.projections, sampler.samples, time.perf_counter() - start, settings)
+    if exposure is not None:
+        for pm in maps:
+            pm.total *= exposure.reference
+    return AppearanceMap(maps, done, sampler.projections, sampler.samples, time.perf_counter() - start, settings,
+                         None if exposure is None else exposure.to_dict())
 
 
 def _frames_at(dataset: Dataset, indices: np.ndarray, rows: np.ndarray) -> Iterator[tuple[Frame, int]]:
@@ -183,8 +199,10 @@ def _frames_at(dataset: Dataset, indices: np.ndarray, rows: np.ndarray) -> Itera
 class _KeyframeSampler:
     """Projects grid rows into one keyframe and adds their samples to a PieceMap."""
 
-    def __init__(self, camera, pieces: list[WallPiece], settings: AppearanceSettings):
+    def __init__(self, camera, pieces: list[WallPiece], settings: AppearanceSettings,
+                 usable: np.ndarray | None = None):
         self.camera = camera
+        self.usable = usable
         self.pieces = pieces
         lo, hi = colatitude_band(settings, camera)
         self.theta_lo, self.theta_hi = math.radians(lo), math.radians(hi)
@@ -251,6 +269,9 @@ class _KeyframeSampler:
             # the camera is in another piece: the point must be in sight through an opening
             near = [q for q in self.pieces if point_segment_distance(c, q.start, q.end) < self.reach + q.radius]
             valid &= in_line_of_sight(c, P[where], near, self.spacing)
+        if self.usable is not None and valid.any():
+            px = np.clip(np.rint(uv).astype(np.int64), 0, [self.usable.shape[1] - 1, self.usable.shape[0] - 1])
+            valid &= self.usable[px[:, 1], px[:, 0]]
         if not valid.any():
             return
         ii, jj = where[0][valid] + rows.start, where[1][valid]
@@ -307,13 +328,14 @@ def read_appearance_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_wc, pieces: Iterable[WallPiece],
-               settings=None, progress: Callable[[int, int], None] | None = None) -> dict:
+               settings=None, progress: Callable[[int, int], None] | None = None,
+               usable: np.ndarray | None = None) -> dict:
     """appearance.ply and unrolled/ into `folder`; returns counts and seconds for run.json.
     `settings`: the run's Settings or its AppearanceSettings."""
     folder = Path(folder)
     s = getattr(settings, "appearance", settings) or AppearanceSettings()
     pieces = list(pieces)
-    amap = build_appearance(dataset, keyframe_indices, poses_T_wc, pieces, s, progress)
+    amap = build_appearance(dataset, keyframe_indices, poses_T_wc, pieces, s, progress, usable)
     t0 = time.perf_counter()
     points, intensity = amap.points()
     write_appearance_ply(folder / "appearance.ply", points, intensity)
@@ -325,6 +347,7 @@ def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_w
         "colatitude_band_deg": [round(v, 2) for v in colatitude_band(s, dataset.camera)],
         "projections": amap.projections,
         "points_per_second": round(amap.points_per_second, 1),
+        "exposure": amap.exposure,
         "seconds": {"appearance": round(amap.seconds, 3), "appearance_write": round(time.perf_counter() - t0, 3)},
     }
 

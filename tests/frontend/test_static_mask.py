@@ -1,0 +1,58 @@
+"""Burned-in text and other pixels that do not move with the wall are found from the frames alone."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from pipemap.frontend.static_mask import find_static_mask
+
+H, W = 240, 320
+
+
+def _frames(n: int, step_px: float, seed: int = 0, text: bool = True):
+    """A random wall texture sliding right by step_px a frame, under a fixed text overlay whose last digits
+    change every frame (a distance counter)."""
+    rng = np.random.default_rng(seed)
+    wall = cv2.GaussianBlur(rng.uniform(0, 255, (H, W * 4)).astype(np.float32), (0, 0), 1.5)
+    wall = 60 + 120 * (wall - wall.min()) / np.ptp(wall)
+    for k in range(n):
+        x = int(round(k * step_px))
+        img = np.ascontiguousarray(wall[:, x:x + W])
+        if text:
+            for colour, thick in ((0, 4), (255, 1)):
+                cv2.putText(img, f"MH12 {1.23 + 0.01 * k:6.2f} m", (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.7, colour,
+                            thick, cv2.LINE_8)
+        yield img
+
+
+def _text_box() -> np.ndarray:
+    box = np.zeros((H, W), bool)
+    box[8:38, 8:230] = True
+    return box
+
+
+def test_text_over_a_moving_wall_is_masked_and_little_else():
+    inside = np.ones((H, W), np.uint8)
+    m = find_static_mask(_frames(40, 7.0), inside, lighting_sigma_px=4.0, grow_px=4)
+    assert m is not None and m.frames == 40
+    layers = []
+    for k in range(40):  # the text's pixels in every frame: what never changes
+        layer = np.zeros((H, W), np.uint8)
+        cv2.putText(layer, f"MH12 {1.23 + 0.01 * k:6.2f} m", (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.7, 255, 4,
+                    cv2.LINE_8)
+        layers.append(layer > 0)
+    static_text = np.logical_and.reduce(layers)
+    assert (~m.usable & static_text).sum() / static_text.sum() > 0.99
+    outside = ~cv2.dilate(_text_box().astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool)
+    assert (~m.usable & outside).mean() < 0.01
+    assert m.masked_fraction < 0.12 and any(x < 40 and y < 40 for x, y, *_ in m.regions)
+
+
+def test_a_wall_without_overlay_is_not_masked():
+    m = find_static_mask(_frames(40, 7.0, text=False), np.ones((H, W), np.uint8), 4.0, grow_px=4)
+    assert m.masked_fraction < 0.01
+
+
+def test_too_few_frames_tell_nothing():
+    assert find_static_mask(_frames(5, 7.0), np.ones((H, W), np.uint8), 4.0) is None
