@@ -414,6 +414,13 @@ def run_command(
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())
     console.print(f"{result.image_count} frames, {result.keyframe_count} keyframes, "
                   f"{len(result.junctions)} junctions, {len(result.straight.points)} points -> {out}  ({stages})")
+    if result.footage.repeated or result.footage.drops or result.footage.damage:
+        console.print(result.footage.line(), markup=False)
+    if result.mask is not None and result.mask.usable is not None:
+        m = result.mask.to_dict()
+        console.print(f"mask: {100 * m['masked_fraction']:.1f} % of the image not used"
+                      + (" (dataset mask" + (" and static overlay)" if result.mask.static else ")") if m["given"]
+                         else " (static overlay found in the footage)"), markup=False)
 
 
 @app.command()

@@ -50,6 +50,8 @@ class FrontendSettings(_Section):
         "template footprints, ZNCC patches, search radii, flow and keyframe thresholds, the Harris scale, the "
         "lighting scale, the classification's sub-sampling; run.json lists the values used. None: px as given")
     harris_block_px: int = Field(3, ge=3, description="Harris integration window (px, odd)")
+    smooth_sigma_px: float = Field(0.0, ge=0, description="Gaussian blur of every frame before corners, descriptors "
+                                   "and ZNCC (px; 0: off)")
     static_mask_frames: int = Field(40, ge=0, description="frames spread over the recording in which pixels that do "
                                     "not move with the wall (burned-in text, logos, lens dirt, the robot's parts) "
                                     "are looked for and masked (frontend/static_mask.py); 0: off")

@@ -32,7 +32,7 @@ class DemoSummary:
     dataset_dir: Path
     result_dir: Path
     report: Path
-    frames: int
+    frames: int  # read from the recording (repeated ones included)
     keyframes: int
     seconds: dict  # simulate, run, maps, evaluate, report, total
     path_length_error_pct: float | None = None
@@ -101,7 +101,7 @@ def run_demo(out_dir: str | Path, width: int = 640, height: int = 480,
                  "error_m": p.error, "error_pct": p.error_pct} for p in metrics.junctions.pairs]
     notes += list(metrics.notes)
     wall = None if metrics.appearance_wall is None else metrics.appearance_wall.as_dict()
-    return DemoSummary(out_dir, Path(dataset_dir), result_dir, html, result.image_count, result.keyframe_count,
+    return DemoSummary(out_dir, Path(dataset_dir), result_dir, html, result.footage.frames, result.keyframe_count,
                        seconds, _finite(metrics.path_length_error_pct), _finite(metrics.ate_rigid.rmse), tees,
                        maps, notes, wall)
 

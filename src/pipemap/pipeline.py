@@ -77,6 +77,8 @@ class PipelineResult:
     straight: StraightResult
     junctions: list[MappedJunction]
     seconds: dict  # per stage
+    footage: FootageLog = field(default_factory=FootageLog)
+    mask: UsableMask | None = None
 
 
 def track_and_classify(dataset: Dataset, settings: Settings,
@@ -297,7 +299,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
         seconds["total"] = time.perf_counter() - start
         write_results(tmp, dataset, front, net, settings, seconds, maps)
     return PipelineResult(Path(out_dir), front.image_count, len(net.straight.indices), net.straight, net.tees,
-                          seconds)
+                          seconds, front.footage, front.mask)
 
 
 __all__ = ["FrontEndResult", "NetworkResult", "PipelineResult", "track_and_classify", "map_network",

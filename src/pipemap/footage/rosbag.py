@@ -17,7 +17,7 @@ import numpy as np
 from pipemap.errors import PipemapError
 from pipemap.footage.images import to_grey
 from pipemap.footage.records import Damage
-from pipemap.footage.source import RawFrame
+from pipemap.footage.source import RawFrame, read_from_stream
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 BAG_SUFFIXES = {".bag", ".db3", ".mcap"}
@@ -213,13 +213,7 @@ class RosBag:
         return f"ROS bag topic {idx.topic} ({idx.msgtype.rsplit('/', 1)[-1]}), {len(idx.stamps)} messages"
 
     def read(self, index: int) -> RawFrame:
-        if not 0 <= index < len(self):
-            raise IndexError(index)
-        for item in self.stream(index, index + 1):
-            if isinstance(item, Damage):
-                raise PipemapError(f"frame {index} {item.reason}", self.path)
-            return item
-        raise PipemapError(f"frame {index} could not be read", self.path)
+        return read_from_stream(self, index)
 
     def stream(self, start: int, stop: int) -> Iterator[RawFrame | Damage]:
         idx = self.index()

@@ -8,6 +8,7 @@ from typing import Iterator, Protocol
 
 import numpy as np
 
+from pipemap.errors import PipemapError
 from pipemap.footage.records import Damage
 
 
@@ -52,3 +53,14 @@ class FrameSource(Protocol):
     def cut(self) -> Damage | None: ...
 
     def describe(self) -> str: ...
+
+
+def read_from_stream(source: FrameSource, index: int) -> RawFrame:
+    """`read` for sources that seek inside `stream`: frame `index`, or PipemapError naming the damage."""
+    if not 0 <= index < len(source):
+        raise IndexError(index)
+    for item in source.stream(index, index + 1):
+        if isinstance(item, Damage):
+            raise PipemapError(f"frame {index} {item.reason}", source.path)
+        return item
+    raise PipemapError(f"frame {index} could not be read", source.path)

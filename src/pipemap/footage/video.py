@@ -16,7 +16,7 @@ import numpy as np
 
 from pipemap.errors import PipemapError
 from pipemap.footage.records import Damage
-from pipemap.footage.source import RawFrame
+from pipemap.footage.source import RawFrame, read_from_stream
 
 # AVFieldOrder values whose bottom field is displayed first (AV_FIELD_BB, AV_FIELD_TB).
 _BOTTOM_FIRST = {3, 4}
@@ -230,13 +230,7 @@ class VideoFile:
         return f"{idx.codec} video {idx.width}x{idx.height}, {idx.count} frames{stated}"
 
     def read(self, index: int) -> RawFrame:
-        if not 0 <= index < len(self):
-            raise IndexError(index)
-        for item in self.stream(index, index + 1):
-            if isinstance(item, Damage):
-                raise PipemapError(f"frame {index} {item.reason}", self.path)
-            return item
-        raise PipemapError(f"frame {index} could not be decoded", self.path)
+        return read_from_stream(self, index)
 
     def stream(self, start: int, stop: int) -> Iterator[RawFrame | Damage]:
         idx = self.index()

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterable, Iterator
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -92,6 +93,8 @@ class FeatureTracker:
     def extract(self, frame: Frame) -> _Features:
         s = self.s
         image = np.ascontiguousarray(frame.image, dtype=np.float32)
+        if s.smooth_sigma_px > 0:
+            image = cv2.GaussianBlur(image, (0, 0), s.smooth_sigma_px)
         mask = self.mask
         if s.flatten_lighting:
             image, lit = flatten_lighting(image, s.lighting_sigma_px, s.dark_level, contrast_limit=s.contrast_limit)
