@@ -144,7 +144,9 @@ class StraightVOSettings(_Section):
     resection_min_points: int | None = Field(20, gt=5, description="a new keyframe's chained pose is refined "
                                              "against the scene points it sees when it sees at least this many "
                                              "(None: off): a perspective camera looking along the pipe trades "
-                                             "rotation for sideways translation in its five-point pose")
+                                             "rotation for sideways translation in its five-point pose. Only for a "
+                                             "camera that does not see the wall beside it (widest colatitude below "
+                                             "90 deg); a fisheye's poses hold without")
     scale_drift: float | None = Field(0.02, gt=0, description="a window solves early once the median radius of the "
                                       "points triangulated since the last solve differs from the pipe's by this "
                                       "fraction (None: only every bundle.step keyframes): a camera looking along the "
