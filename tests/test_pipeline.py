@@ -104,3 +104,24 @@ def test_existing_output_refused(runs, tmp_path):
     with pytest.raises(PipemapError):
         run_pipeline(data, out, load_settings())
     assert (out / "keep.txt").read_text() == "mine"
+
+
+def test_sections_rated_and_strict_exit(runs, tmp_path):
+    """The straight run is rated good from its own figures; limits no run can meet make it failed, which
+    --strict turns into exit status 3 while the result folder is still written."""
+    from typer.testing import CliRunner
+
+    from pipemap.cli import app
+
+    data, res, _, _ = runs
+    q = json.loads((res.out_dir / "run.json").read_text())["quality"]
+    assert q["rating"] == "good" and q["line"] == "map good: 1 section good" and q["gaps"] == []
+    figures = q["sections"][0]["figures"]
+    assert figures["free_radius_m"] == pytest.approx(0.2, rel=0.01)  # measured: 0.1 % off the 200 mm radius
+    assert figures["rms_px"] < 0.5
+    out = tmp_path / "strict"
+    cli = CliRunner().invoke(app, ["run", str(data), "--out", str(out), "--method", "network", "--strict",
+                                   "--set", "quality.rms_px=[0.001, 0.002]"])
+    assert cli.exit_code == 3, cli.output
+    assert "map failed: 1 section failed: section 0's reprojection RMS (px)" in " ".join(cli.output.split())
+    assert (out / "run.json").exists()

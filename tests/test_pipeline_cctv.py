@@ -58,3 +58,32 @@ def test_auto_sees_a_camera_looking_along_the_pipe(cctv_run):
     view = camera_view(load_dataset(data))
     assert view.looks == ALONG and view.method == NETWORK_METHOD
     assert view.travel_deg < 5.0  # the camera looks along the pipe, give or take the robot's wobble
+
+
+@pytest.mark.parametrize("method", ["dense-hybrid", "sparse-cylinder"])
+def test_straight_pipe_methods_refuse_a_camera_looking_along_the_pipe(cctv_run, tmp_path, method):
+    """With --method dense-hybrid this camera once gave 2.87 m for an 11.18 m route, silently."""
+    from pipemap.errors import PipemapError
+    from pipemap.straight import run_dense
+    from pipemap.straight.sparse import run_sparse
+
+    data, _ = cctv_run
+    with pytest.raises(PipemapError, match="the camera looks along the pipe.*use --method network"):
+        if method == "sparse-cylinder":
+            run_sparse(data, tmp_path / "out", load_settings())
+        else:
+            run_dense(data, tmp_path / "out", load_settings(), method)
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out*"))
+
+
+def test_forward_camera_sections_rated_from_their_own_figures(cctv_run):
+    _, res = cctv_run
+    q = json.loads((res.out_dir / "run.json").read_text())["quality"]
+    assert res.quality is not None and q["rating"] == res.quality.rating
+    straight = [s for s in q["sections"] if s["kind"] == "straight"]
+    assert [s["kind"] for s in q["sections"]] == ["straight", "junction", "straight"]
+    # the free radius: the tracks triangulated from the final poses alone lie on the 150 mm wall
+    first = straight[0]["figures"]
+    assert first["free_radius_points"] >= 30
+    assert first["free_radius_m"] == pytest.approx(0.15, rel=0.02)
+    assert straight[0]["rating"] == "good", straight[0]["reasons"]

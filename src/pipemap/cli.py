@@ -12,6 +12,7 @@ from typing import Callable, List, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from pipemap import __version__
@@ -368,6 +369,8 @@ def run_command(
                                     "dense-hybrid for one looking at its wall."),
     config: Optional[Path] = CONFIG_OPTION,
     set_: List[str] = SET_OPTION,
+    strict: bool = typer.Option(False, "--strict", help="exit with status 3 when any section is rated suspect or "
+                                "failed (the result folder is still written)"),
 ) -> None:
     """Map a dataset and write trajectory.tum, frames.csv, run.json (and sparse.ply, or unrolled/).
 
@@ -397,6 +400,7 @@ def run_command(
         if dense.mount is not None:
             console.print(dense.mount.line(), markup=False)
         console.print(f"scale: {dense.zeta:.1f} px/m from {dense.zeta_source}", markup=False)
+        _verdict(dense.quality, strict)
         return
     if method == SPARSE_METHOD:
         with frame_progress(method) as progress:
@@ -405,6 +409,7 @@ def run_command(
                       f"C_X {sparse.offset[0] * 1e3:.2f} mm, C_Y {sparse.offset[1] * 1e3:.2f} mm -> {out}")
         if sparse.mount is not None:
             console.print(sparse.mount.line(), markup=False)
+        _verdict(sparse.quality, strict)
         return
     if method not in ("network", "fisheye"):
         raise PipemapError(f"unknown method {method!r} (expected auto, network, {', '.join(DENSE_METHODS)}, "
@@ -421,6 +426,30 @@ def run_command(
         console.print(f"mask: {100 * m['masked_fraction']:.1f} % of the image not used"
                       + (" (dataset mask" + (" and static overlay)" if result.mask.static else ")") if m["given"]
                          else " (static overlay found in the footage)"), markup=False)
+    _verdict(result.quality, strict)
+
+
+def _verdict(quality, strict: bool) -> None:
+    """The sections' ratings as a table (all of them when any is not good), then the one-line verdict;
+    with --strict, exit status 3 unless the map is good."""
+    if quality is None:
+        return
+    from pipemap.quality import GOOD
+
+    if quality.rating != GOOD:
+        table = Table(title="self-checks", show_lines=False)
+        for col in ("section", "kind", "frames", "keyframes", "rating", "why"):
+            table.add_column(col)
+        for s in quality.sections:
+            table.add_row(str(s.number), s.kind, f"{s.first_frame}-{s.last_frame}", str(s.keyframes), s.rating,
+                          "; ".join(s.reasons))
+        for gap in quality.gaps:
+            table.add_row("gap", "", f"{gap['after_frame']}-{gap['before_frame']}", "", "", "not bridged")
+        console.print(table)
+    style = {"good": "green", "suspect": "yellow", "failed": "red"}[quality.rating]
+    console.print(f"[{style}]{escape(quality.line())}[/{style}]", highlight=False)
+    if strict and quality.rating != GOOD:
+        raise typer.Exit(3)
 
 
 @app.command()

@@ -330,6 +330,41 @@ class GainMaskSettings(_Section):
     sigma_px: float = Field(15.0, gt=0, description="Gaussian smoothing of the averaged white-card images")
 
 
+class QualitySettings(_Section):
+    """Self-checks from the data alone: what is too little to map, and when a section is suspect or failed."""
+
+    min_frames: int = Field(10, gt=1, description="fewer readable frames (repeats not counted): nothing to map")
+    min_lit_fraction: float = Field(0.05, ge=0, le=1, description="a frame whose pixels brighter than "
+                                    "frontend.dark_level are fewer than this fraction is dark (lights off)")
+    min_texture: float = Field(1.5, ge=0, description="a frame whose lit pixels vary by less than this (grey-level "
+                               "standard deviation after removing the lighting) shows no wall texture")
+    min_keyframes: int = Field(3, gt=1, description="a section with fewer keyframes is suspect; a run with fewer "
+                               "in all maps nothing")
+    rms_px: tuple[float, float] = Field((1.0, 2.5), description="reprojection RMS of a section's window solves "
+                                        "(median): suspect above the first, failed above the second")
+    cylinder_rms: tuple[float, float] = Field((0.02, 0.05), description="RMS distance of a section's points from "
+                                              "its wall, as a fraction of the radius: suspect, failed")
+    free_radius: tuple[float, float] = Field((0.02, 0.05), description="the radius of a section's points "
+                                             "triangulated from its poses alone (no wall term) against the "
+                                             "given radius, relative difference: suspect, failed (a scale "
+                                             "problem)")
+    min_free_radius_points: int = Field(30, gt=0, description="fewer triangulated points: no free radius")
+    tracked_share: tuple[float, float] = Field((0.5, 0.25), description="a section's median fraction of the "
+                                               "previous keyframe's features tracked on, as a share of the run's "
+                                               "median (the lens sets the usual value): suspect below the first, "
+                                               "failed below the second")
+    loop_correction: tuple[float, float] = Field((0.01, 0.03), description="largest pose correction of loop "
+                                                 "closure as a fraction of the route's length: suspect, failed")
+    registration_zncc: float = Field(0.5, description="dense methods: a frame pair registered with a lower "
+                                     "similarity is a weak link")
+    weak_links: tuple[float, float] = Field((0.02, 0.1), description="dense methods: fraction of weak links: "
+                                            "suspect, failed")
+    mount_sigma: tuple[float, float] = Field((0.005, 0.015), description="straight-pipe methods: the estimated "
+                                             "offset's standard deviation as a fraction of the distance to the "
+                                             "wall, which is the scale's own: suspect above the first (two sigma "
+                                             "reach 1 % of distance), failed above the second")
+
+
 class Settings(_Section):
     seed: int = Field(0, description="seed of every random choice (RANSAC, sampling)")
     frontend: FrontendSettings = FrontendSettings()
@@ -341,6 +376,7 @@ class Settings(_Section):
     dense: DenseSettings = DenseSettings()
     sparse: SparseSettings = SparseSettings()
     gain_mask: GainMaskSettings = GainMaskSettings()
+    quality: QualitySettings = QualitySettings()
 
     def to_dict(self) -> dict[str, Any]:
         return self.model_dump(mode="json")

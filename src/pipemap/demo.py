@@ -100,6 +100,8 @@ def run_demo(out_dir: str | Path, width: int = 640, height: int = 480,
         tees = [{"pair": "-".join(p.truth_ids), "truth_m": p.ground_truth, "estimate_m": p.estimate,
                  "error_m": p.error, "error_pct": p.error_pct} for p in metrics.junctions.pairs]
     notes += list(metrics.notes)
+    if result.quality is not None:
+        notes.insert(0, f"self-checks: {result.quality.line()}")
     wall = None if metrics.appearance_wall is None else metrics.appearance_wall.as_dict()
     return DemoSummary(out_dir, Path(dataset_dir), result_dir, html, result.footage.frames, result.keyframe_count,
                        seconds, _finite(metrics.path_length_error_pct), _finite(metrics.ate_rigid.rmse), tees,

@@ -42,6 +42,7 @@ from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.geometry.bend import OFFSET_SIGMA_M
 from pipemap.mapping import WallPiece, write_maps
 from pipemap.output import atomic_write_text, result_folder
+from pipemap.quality import FrameStats, RunVerdict, network_verdict, require_mappable
 from pipemap.trajectory import Trajectory, write_tum
 from pipemap.view import check_wall_in_view
 
@@ -54,6 +55,7 @@ class FrontEndResult:
     seconds: dict
     footage: FootageLog = field(default_factory=FootageLog)  # repeated, dropped and damaged frames
     mask: UsableMask | None = None  # the pixels that move with the wall
+    stats: FrameStats | None = None  # lighting and texture of the frames read
 
 
 @dataclass
@@ -67,6 +69,7 @@ class NetworkResult:
     joins: list = field(default_factory=list)  # JoinReport per junction (the tee-model solves)
     revisit: RevisitReport | None = None  # loop closure
     tees: list[MappedJunction] = field(default_factory=list)  # distinct tees in order of first passage
+    quality: RunVerdict | None = None  # the sections' self-checks
 
 
 @dataclass
@@ -79,6 +82,7 @@ class PipelineResult:
     seconds: dict  # per stage
     footage: FootageLog = field(default_factory=FootageLog)
     mask: UsableMask | None = None
+    quality: RunVerdict | None = None
 
 
 def track_and_classify(dataset: Dataset, settings: Settings,
@@ -100,6 +104,7 @@ def track_and_classify(dataset: Dataset, settings: Settings,
     start = time.perf_counter()
 
     log = FootageLog()
+    stats = FrameStats.for_settings(settings)
     # a repeated frame (a stalled link) shows nothing new: tracked, it would be a stop of the robot
     frames = (f for f in dataset.frames(log=log) if not f.repeated)
 
@@ -112,6 +117,7 @@ def track_and_classify(dataset: Dataset, settings: Settings,
         timing["read"] += time.perf_counter() - t
         t = time.perf_counter()
         classifier.add(frame)
+        stats.add(frame.image)
         t1 = time.perf_counter()
         features = tracker.extract(frame)
         timing["classification"] += t1 - t
@@ -138,7 +144,7 @@ def track_and_classify(dataset: Dataset, settings: Settings,
     # frontend: the stage's wall time; read/classification/extract ran beside it on the second thread.
     seconds = {"frontend": wall, "read": timing["read"], "classification": timing["classification"],
                "extract": timing["extract"]}
-    return FrontEndResult(keyframes, classifier.result(), done, seconds, log, mask)
+    return FrontEndResult(keyframes, classifier.result(), done, seconds, log, mask, stats)
 
 
 def keyframe_labels(keyframes: list[Keyframe], classes: SequenceClass) -> np.ndarray:
@@ -196,10 +202,13 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     # World = the first keyframe's camera frame (x right, y down): 12 o'clock is its -y.
     up = -result.poses[0, :3, 1] if len(result.poses) else np.array([0.0, -1.0, 0.0])
     pieces = wall_pieces(sections, junctions, up)
+    route = float(np.sum(np.linalg.norm(np.diff(result.poses[:, :3, 3], axis=0), axis=1))) if len(result.poses) else 0.0
+    quality = network_verdict(result.sections, result.windows, vo.keyframes, result.poses, sections, junctions, joins,
+                              revisit, dataset.radius_m, settings.quality, route)
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
     seconds["loop_closure"] = revisit.seconds
-    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces, joins, revisit, tees)
+    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces, joins, revisit, tees, quality)
 
 
 def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
@@ -253,6 +262,7 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
         "tee_solves": [r.to_dict() for r in net.joins],
         "loop_closure": None if net.revisit is None else net.revisit.to_dict(),
         "problems": problems,
+        "quality": None if net.quality is None else net.quality.to_dict(),
         "windows": [w.to_dict() for w in result.windows],
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
     }
@@ -283,6 +293,8 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
     with result_folder(Path(out_dir)) as tmp:
         stage("tracking")
         front = track_and_classify(dataset, settings, progress)
+        require_mappable(front.stats, len(front.keyframes), len(dataset), len(front.footage.repeated), settings,
+                         dataset.root)
         stage("mapping")
         net = map_network(front, dataset, settings)
         maps = None
@@ -299,7 +311,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
         seconds["total"] = time.perf_counter() - start
         write_results(tmp, dataset, front, net, settings, seconds, maps)
     return PipelineResult(Path(out_dir), front.image_count, len(net.straight.indices), net.straight, net.tees,
-                          seconds, front.footage, front.mask)
+                          seconds, front.footage, front.mask, net.quality)
 
 
 __all__ = ["FrontEndResult", "NetworkResult", "PipelineResult", "track_and_classify", "map_network",

@@ -46,7 +46,15 @@ def make_result(folder: Path, dataset: Path, with_maps: bool = True) -> Path:
     (folder / "junctions.yaml").write_text(yaml.safe_dump(doc))
     run = {"version": "test", "input": str(dataset), "frames": 60, "keyframes": len(gt), "points": 123,
            "junctions": doc["junctions"], "problems": ["section 2: a problem worth showing"],
-           "seconds": {"frontend": 1.5, "straight_windows": 0.5, "total": 2.25}}
+           "seconds": {"frontend": 1.5, "straight_windows": 0.5, "total": 2.25},
+           "quality": {"rating": "suspect", "line": "map suspect: 1 section good, 1 section suspect: section 1's "
+                                                      "wall residual 3.0 % (limit 2.0 %)",
+                       "sections": [{"section": 0, "kind": "straight", "first_frame": 0, "last_frame": 29,
+                                     "keyframes": 12, "rating": "good", "reasons": []},
+                                    {"section": 1, "kind": "straight", "first_frame": 30, "last_frame": 59,
+                                     "keyframes": 12, "rating": "suspect",
+                                     "reasons": ["wall residual 3.0 % (limit 2.0 %)"]}],
+                       "gaps": [{"after_frame": 29, "before_frame": 30, "section": 1}]}}
     (folder / "run.json").write_text(json.dumps(run))
     if with_maps:
         (folder / "unrolled").mkdir()
@@ -83,6 +91,8 @@ def test_full_report(loop_dataset, tmp_path):
         assert f"{pair.error:+.3f}" in html
         assert abs(pair.error) < 0.021  # the centres moved by 1 cm each
     assert "a problem worth showing" in html
+    assert "map suspect: 1 section good, 1 section suspect" in html and "<td>wall residual 3.0 % (limit 2.0 %)</td>" in html
+    assert "tracking lost: not bridged" in html
     assert "50 points" in html  # appearance.ply's vertex count
     thumb = cv2.imread(str(result / "report" / "thumb-S1.png"), cv2.IMREAD_UNCHANGED)
     assert thumb.shape == (100, 300)  # narrower than the thumbnail width: kept as is

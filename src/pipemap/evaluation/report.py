@@ -112,6 +112,19 @@ def _summary(run: dict | None, frames_csv: Path) -> str:
     return text
 
 
+def _quality(run: dict | None) -> str:
+    """The self-checks: the one-line verdict and each section's rating with its reasons."""
+    q = (run or {}).get("quality")
+    if not q:
+        return "<h2>Self-checks</h2><p class=missing>run.json has no self-checks (an older result).</p>"
+    rows = [[s["section"], s["kind"], f"{s['first_frame']}-{s['last_frame']}", s["keyframes"], s["rating"],
+             "; ".join(s["reasons"]) or "-"] for s in q["sections"]]
+    rows += [["gap", "", f"{g['after_frame']}-{g['before_frame']}", "", "", "tracking lost: not bridged"]
+             for g in q.get("gaps", [])]
+    return (f"<h2>Self-checks</h2><p><b>{html.escape(q['line'])}</b></p>"
+            + _table(["section", "kind", "frames", "keyframes", "rating", "why"], rows, numeric_from=6))
+
+
 def _timings(run: dict | None, plots: Path) -> str:
     seconds = (run or {}).get("seconds")
     if not isinstance(seconds, dict) or not seconds:
@@ -350,6 +363,7 @@ def write_report(result_dir: str | Path, dataset_dir: str | Path | None = None) 
     parts = [f"<!DOCTYPE html><html><head><meta charset=utf-8><title>{html.escape(title)}</title>"
              f"<style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>",
              _summary(run, result_dir / "frames.csv"),
+             _quality(run),
              _trajectory(result_dir, dataset_dir, plots),
              _errors(_json(result_dir / "metrics.json")),
              _maps(result_dir, plots),

@@ -28,6 +28,7 @@ from pipemap.errors import PipemapError
 from pipemap.footage import FootageLog
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
+from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_verdict
 from pipemap.straight.mount import Mount, estimate_mount
 from pipemap.straight.registration import Shift, adaptive_full_search, hybrid, lucas_kanade
 from pipemap.straight.scale import row_pixels_per_metre
@@ -53,6 +54,7 @@ class DenseResult:
     rows: tuple[int, int]
     seconds: dict = field(default_factory=dict)
     mount: Mount | None = None
+    quality: RunVerdict | None = None  # the self-checks
 
 
 def band_rows(height: int, fraction: float) -> tuple[int, int]:
@@ -211,8 +213,10 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
     running = {"c": np.zeros(2), "w": None}
     shown: list[np.ndarray] = []
     pair_zeta: list[float] = []
+    stats = FrameStats.for_settings(settings)
 
     def on_frame(k: int, img: np.ndarray, t: np.ndarray) -> None:
+        stats.add(img)
         running["c"] = running["c"] + t
         if row_zeta is not None:
             if k > 0:
@@ -233,6 +237,7 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
         t_reg = time.perf_counter() - start
         if len(indices) == 0:
             raise PipemapError("no images in the dataset", dataset.root)
+        require_mappable(stats, len(indices), total, len(log.repeated), settings, dataset.root)
         pos = integrate(shifts, zeta if row_zeta is None else np.array(pair_zeta))
         idx = np.array(indices, int)
         traj = Trajectory(dataset.times()[idx], pos, np.tile(rect.rotation, (len(idx), 1, 1)))  # camera -> virtual axes
@@ -264,6 +269,8 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
         atomic_write_text(tmp / "unrolled" / "dense_000.json", json.dumps(sidecar, indent=2) + "\n")
         from pipemap import __version__
 
+        quality = straight_verdict(method, idx, traj.timestamps, pos[:, 0], mount, dataset.radius_m, settings.quality,
+                                   scale_source=scale["source"])
         seconds = {"mount": t_mount, "registration": t_reg, "write": time.perf_counter() - t1}
         seconds["total"] = time.perf_counter() - start
         run = {
@@ -292,10 +299,11 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
             "keyframes": len(idx),
             "frames_per_second": len(idx) / max(t_reg, 1e-9),
             "distance_along_pipe_m": float(pos[-1, 0] - pos[0, 0]),
+            "quality": quality.to_dict(),
             "seconds": {k: round(v, 3) for k, v in seconds.items()},
         }
         atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
-    return DenseResult(method, idx, shifts, scores, zeta, source, traj, (w, h), rows, seconds, mount)
+    return DenseResult(method, idx, shifts, scores, zeta, source, traj, (w, h), rows, seconds, mount, quality)
 
 
 def _wall_distance(dense: DenseSettings, mount: Mount | None, radius: float) -> float:

@@ -118,4 +118,25 @@ def estimate_mount(dataset: Dataset, settings: Settings, gain_correct: bool = Tr
             f"the camera's mount cannot be estimated: {len(odometry.keyframes)} keyframes in {n} images, too few "
             "wall points seen by two or more of them (the camera sees too little of the wall, or the robot barely "
             "moves); give dense.pixels_per_metre or dense.camera_offset_m and dense.mount=square", dataset.yaml_path)
+    require_wall_view(dataset, settings, mount)
     return mount
+
+
+def require_wall_view(dataset: Dataset, settings: Settings, mount: Mount | None) -> None:
+    """Refuse a recording the straight-pipe model does not fit at all: the mount's batch reprojects worse than
+    quality.rms_px's failed limit. The usual cause, a camera looking along the pipe, is measured and named."""
+    limit = settings.quality.rms_px[1]
+    if mount is None or not np.isfinite(mount.rms_px) or mount.rms_px <= limit:
+        return
+    from pipemap.view import ALONG, camera_view
+
+    misfit = f"the straight-pipe model does not fit these images (mount batch reprojection RMS {mount.rms_px:.1f} px, " \
+             f"limit {limit:g})"
+    try:
+        view = camera_view(dataset, settings)
+    except PipemapError:
+        view = None
+    if view is not None and view.looks == ALONG:
+        raise PipemapError(f"{misfit}: the camera looks along the pipe ({view.reason()}); the straight-pipe methods "
+                           "need a camera looking at the wall: use --method network", dataset.yaml_path)
+    raise PipemapError(f"{misfit}: is this a straight pipe seen by a camera looking at its wall?", dataset.yaml_path)

@@ -28,7 +28,8 @@ from pipemap.errors import PipemapError
 from pipemap.footage import FootageLog
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
-from pipemap.straight.mount import Mount
+from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_verdict
+from pipemap.straight.mount import Mount, require_wall_view
 from pipemap.straight.sparse_geometry import E_H
 from pipemap.straight.sparse_keyframes import KeyframeSelector
 from pipemap.straight.sparse_odometry import SparseOdometry
@@ -50,6 +51,7 @@ class SparseResult:
     unrolled: UnrolledWall | None
     seconds: dict = field(default_factory=dict)
     mount: Mount | None = None  # the camera's mount as the initial batch found it
+    quality: RunVerdict | None = None  # the self-checks
 
 
 def to_first_camera(R: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -95,10 +97,12 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         t_features = t_motion = 0.0
         n = 0
         log, read = FootageLog(), []
+        stats = FrameStats.for_settings(settings)
         for frame in dataset.frames(gain_correct=sp.gain_correct, log=log):
             if frame.repeated:  # a stalled link's copy: nothing new, and no keyframe can come of it
                 continue
             read.append(frame.index)
+            stats.add(frame.image)
             t0 = time.perf_counter()
             links = list(selector.push(frame.index, frame.image))
             t1 = time.perf_counter()
@@ -118,8 +122,10 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
             odometry.start(selector.first)
         odometry.finish()
         mount = Mount.from_odometry(odometry, n)
+        require_wall_view(dataset, settings, mount)
         t_motion += time.perf_counter() - t1
         idx, R, C = odometry.poses()
+        require_mappable(stats, len(idx), total, len(log.repeated), settings, dataset.root)
         Rw, Cw = to_first_camera(R, C)
         traj = Trajectory(dataset.times()[idx], Cw, Rw)
 
@@ -148,6 +154,9 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         off = odometry.offset
         offset = np.asarray(C[0, :2], float)
         h = C[:, 2]
+        quality = straight_verdict(SPARSE_METHOD, idx, traj.timestamps, h, mount, radius, settings.quality,
+                                   batch_rms_px=None if off is None else off.rms_px,
+                                   unconstrained=odometry.unconstrained)
         run = {
             "version": __version__,
             "stage": "sparse",
@@ -175,10 +184,12 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
             "distance_along_pipe_m": float(h.max() - h.min()),
             "keyframes_without_constraints": odometry.unconstrained,
             "refinement_dof": odometry.refine_dof(),
+            "quality": quality.to_dict(),
             "seconds": {k: round(v, 3) for k, v in seconds.items()},
         }
         atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
-    return SparseResult(idx, R, C, offset, np.nan if off is None else off.rms_px, traj, n, wall, seconds, mount)
+    return SparseResult(idx, R, C, offset, np.nan if off is None else off.rms_px, traj, n, wall, seconds, mount,
+                        quality)
 
 
 def _fmt(v) -> str:

@@ -1,0 +1,142 @@
+"""Self-checks of the network pipeline's sections, from the run's own figures (no ground truth).
+
+Straight sections: the window solves' reprojection RMS and wall residual, the tracked fraction of
+the keyframes, whether the section has a metric scale at all, and the free radius: the section's
+tracks triangulated from its final poses alone, with no wall term, lie at a radius that scales
+with the poses' translations, so a wrong scale shows as a radius off the given one. Junction
+sections: how the junction was placed (two axes meeting, the tee model, or only the camera path).
+The run: loop closure's largest correction and the stretches where tracking was lost, which the
+trajectory does not bridge.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipemap.config import QualitySettings
+from pipemap.quality.verdict import FAILED, GOOD, SUSPECT, Check, RunVerdict, SectionVerdict, above, below
+
+_MIN_PARALLAX_DEG = 2.0  # tracks seen over less are too poorly triangulated to say anything about the radius
+
+
+def free_radius(keyframes, poses: np.ndarray, first: int, last: int, axis_origin: np.ndarray,
+                axis_direction: np.ndarray, min_points: int) -> tuple[float | None, int]:
+    """Median distance from the axis of the tracks seen by keyframes first..last, each triangulated
+    (least-squares ray intersection) from the final poses alone; (None, n) with fewer than min_points."""
+    tids, bearings, centres = [], [], []
+    for k in range(first, last + 1):
+        kf = keyframes[k]
+        if not len(kf.track_ids):
+            continue
+        R, c = poses[k, :3, :3], poses[k, :3, 3]
+        tids.append(kf.track_ids)
+        bearings.append(kf.bearings @ R.T)
+        centres.append(np.broadcast_to(c, (len(kf.track_ids), 3)))
+    if not tids:
+        return None, 0
+    tids, d, c = np.concatenate(tids), np.concatenate(bearings), np.concatenate(centres)
+    ids, inv, counts = np.unique(tids, return_inverse=True, return_counts=True)
+    keep = counts[inv] >= 3
+    ids, inv = np.unique(tids[keep], return_inverse=True)
+    d, c = d[keep], c[keep]
+    m = len(ids)
+    if m == 0:
+        return None, 0
+    # sum over a track's rays of (I - d d^T) X = (I - d d^T) c
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    A = np.zeros((m, 3, 3))
+    b = np.zeros((m, 3))
+    np.add.at(A, inv, P)
+    np.add.at(b, inv, np.einsum("nij,nj->ni", P, c))
+    # parallax: the spread of a track's ray directions (smallest eigenvalue of A / count)
+    n = np.bincount(inv, minlength=m).astype(float)
+    spread = np.linalg.eigvalsh(A / n[:, None, None])[:, 0]
+    ok = spread > np.sin(np.radians(_MIN_PARALLAX_DEG)) ** 2 / 4
+    if ok.sum() < min_points:
+        return None, int(ok.sum())
+    X = np.linalg.solve(A[ok], b[ok][:, :, None])[:, :, 0]
+    u = axis_direction / np.linalg.norm(axis_direction)
+    rel = X - axis_origin
+    dist = np.linalg.norm(rel - np.outer(rel @ u, u), axis=1)
+    return float(np.median(dist)), int(ok.sum())
+
+
+def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_sections, junctions, joins, revisit,
+                    radius: float, q: QualitySettings, route_length_m: float) -> RunVerdict:
+    """The rating of every VO section of a network run and of the run's loop closure."""
+    mapped = {m.number: m for m in mapped_sections}
+    by_section: dict[int, list] = {}
+    for w in windows:
+        by_section.setdefault(w.section, []).append(w)
+    junction_of = {(j.first, j.last): j for j in junctions}
+    join_of = {r.junction: r for r in joins}
+    out, gaps = [], []
+    for s in vo_sections:
+        kfs = keyframes[s.first:s.last + 1]
+        v = SectionVerdict(s.number, s.kind, int(kfs[0].index), int(kfs[-1].index), s.last - s.first + 1)
+        if s.number > 0 and not s.linked:
+            prev = keyframes[s.first - 1]
+            gaps.append({"after_frame": int(prev.index), "before_frame": int(kfs[0].index), "section": s.number})
+            v.checks.append(Check("tracking", None, SUSPECT, f"tracking was lost before it (frames {prev.index}-"
+                                  f"{kfs[0].index}): its place relative to the map before is not known"))
+        # the previous keyframe's features that go on as tracks consistent with the relative pose: how many do
+        # depends on the lens (a forward camera loses its rim every step), so a section is judged against the run
+        pairs = ((keyframes[k - 1], keyframes[k]) for k in range(max(s.first, 1), s.last + 1))
+        tracked = [kf.inliers.sum() / len(prev) for prev, kf in pairs if kf.pose_valid and len(prev)]
+        v.figures["tracked_fraction"] = float(np.median(tracked)) if tracked else None
+        if s.kind == "straight":
+            _straight_checks(v, s, by_section.get(s.number, []), keyframes, poses, mapped.get(s.number), radius, q)
+        else:
+            j = junction_of.get((s.first, s.last))
+            if j is not None:
+                v.figures["junction"] = j.id
+                v.figures["placed_by"] = j.method
+                if j.method == "path":
+                    v.checks.append(Check("junction evidence", None, SUSPECT, f"{j.id} has a straight section on "
+                                          "one side only: its centre follows the camera path"))
+                r = join_of.get(j.id)
+                if r is not None and r.status != "tee-model":
+                    v.checks.append(Check("tee model", None, SUSPECT, f"{j.id}'s tee model was not solved "
+                                          f"({r.status})"))
+        out.append(v)
+    run_tracked = [v.figures["tracked_fraction"] for v in out if v.figures.get("tracked_fraction") is not None]
+    if run_tracked:
+        typical = float(np.median(run_tracked))
+        for v in out:
+            f = v.figures.get("tracked_fraction")
+            v.checks.append(below("tracking", None if f is None or typical <= 0 else f / typical, q.tracked_share,
+                                  "tracked fraction against the run's median", fmt=lambda x: f"{100 * x:.0f} %"))
+    checks = []
+    if revisit is not None and revisit.status == "closed" and route_length_m > 0:
+        checks.append(above("loop closure", revisit.max_correction_m / route_length_m, q.loop_correction,
+                            "loop closure moved a pose by a fraction of the route of", fmt=lambda x: f"{100 * x:.2f} %"))
+    return RunVerdict(out, checks, gaps)
+
+
+def _straight_checks(v: SectionVerdict, s, windows, keyframes, poses, mapped, radius: float, q: QualitySettings):
+    if v.keyframes < q.min_keyframes:
+        v.checks.append(Check("keyframes", v.keyframes, SUSPECT, f"only {v.keyframes} keyframes"))
+    if s.scale == "unit":
+        v.checks.append(Check("scale", None, FAILED, "no metric scale: no window could be solved"))
+    elif s.scale == "assumed":
+        v.checks.append(Check("scale", None, SUSPECT, "scale carried over from the section before (no window "
+                              "solve of its own)"))
+    rms = [w.rms_px for w in windows if np.isfinite(w.rms_px)]
+    cyl = [w.cylinder_rms_m for w in windows if np.isfinite(w.cylinder_rms_m)]
+    v.figures["windows"] = len(windows)
+    v.figures["rms_px"] = float(np.median(rms)) if rms else None
+    v.figures["cylinder_rms_m"] = float(np.median(cyl)) if cyl else None
+    v.checks.append(above("reprojection", v.figures["rms_px"], q.rms_px, "reprojection RMS (px)"))
+    v.checks.append(above("wall residual", None if not cyl else v.figures["cylinder_rms_m"] / radius, q.cylinder_rms,
+                          "wall residual, fraction of the radius,", fmt=lambda x: f"{100 * x:.1f} %"))
+    r_free, n = (None, 0)
+    if mapped is not None and mapped.cylinder is not None:
+        r_free, n = free_radius(keyframes, poses, s.first, s.last, mapped.cylinder.origin, mapped.cylinder.direction,
+                                q.min_free_radius_points)
+    v.figures["free_radius_m"] = r_free
+    v.figures["free_radius_points"] = n
+    v.checks.append(above("free radius", None if r_free is None else abs(r_free / radius - 1), q.free_radius,
+                          "free radius is off the given one by", fmt=lambda x: f"{100 * x:.1f} %"))
+
+
+__all__ = ["free_radius", "network_verdict"]
