@@ -123,5 +123,5 @@ def test_sections_rated_and_strict_exit(runs, tmp_path):
     cli = CliRunner().invoke(app, ["run", str(data), "--out", str(out), "--method", "network", "--strict",
                                    "--set", "quality.rms_px=[0.001, 0.002]"])
     assert cli.exit_code == 3, cli.output
-    assert "map failed: 1 section failed: section 0's reprojection RMS (px)" in " ".join(cli.output.split())
+    assert "map failed: 1 section failed: section 0: reprojection RMS (px)" in " ".join(cli.output.split())
     assert (out / "run.json").exists()

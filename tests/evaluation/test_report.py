@@ -47,7 +47,7 @@ def make_result(folder: Path, dataset: Path, with_maps: bool = True) -> Path:
     run = {"version": "test", "input": str(dataset), "frames": 60, "keyframes": len(gt), "points": 123,
            "junctions": doc["junctions"], "problems": ["section 2: a problem worth showing"],
            "seconds": {"frontend": 1.5, "straight_windows": 0.5, "total": 2.25},
-           "quality": {"rating": "suspect", "line": "map suspect: 1 section good, 1 section suspect: section 1's "
+           "quality": {"rating": "suspect", "line": "map suspect: 1 section good, 1 section suspect: section 1: "
                                                       "wall residual 3.0 % (limit 2.0 %)",
                        "sections": [{"section": 0, "kind": "straight", "first_frame": 0, "last_frame": 29,
                                      "keyframes": 12, "rating": "good", "reasons": []},

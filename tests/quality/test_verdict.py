@@ -27,7 +27,7 @@ def test_run_verdict_line_names_the_worst_reason():
                                                              "the given one by 6.0 % (limit 5.0 %)")])
     run = RunVerdict([good, odd, SectionVerdict(2, "junction", 200, 220, 5)])
     assert run.rating == FAILED and run.counts() == {GOOD: 2, SUSPECT: 0, FAILED: 1}
-    assert run.line() == ("map failed: 2 sections good, 1 section failed: section 1's free radius is off the "
+    assert run.line() == ("map failed: 2 sections good, 1 section failed: section 1: free radius is off the "
                           "given one by 6.0 % (limit 5.0 %)")
     assert RunVerdict([good]).line() == "map good: 1 section good"
     d = run.to_dict()
@@ -106,7 +106,7 @@ def test_network_verdict_rates_each_section_from_its_figures():
     assert any("reprojection RMS (px) 1.6" in r for r in s2.reasons)
     assert any("tracking was lost before it (frames 57-60)" in r for r in s2.reasons)
     assert q.gaps == [{"after_frame": 57, "before_frame": 60, "section": 2}]
-    assert q.line().startswith("map failed: 1 section good, 1 section suspect, 1 section failed: section 2's no metric")
+    assert q.line().startswith("map failed: 1 section good, 1 section suspect, 1 section failed: section 2: no metric")
 
 
 def test_straight_verdict_rates_the_mount_that_sets_the_scale():

@@ -94,7 +94,7 @@ class RunVerdict:
         n = self.counts()
         parts = [f"{n[r]} section{'s' if n[r] != 1 else ''} {r}" for r in (GOOD, SUSPECT, FAILED) if n[r]]
         text = f"map {self.rating}: " + (", ".join(parts) if parts else "no sections")
-        why = [f"section {s.number}'s {s.reasons[0]}" for s in self.sections if s.rating == self.rating and s.reasons]
+        why = [f"section {s.number}: {s.reasons[0]}" for s in self.sections if s.rating == self.rating and s.reasons]
         why += [c.reason for c in self.checks if c.rating == self.rating and c.reason]
         if self.rating != GOOD and why:
             text += ": " + why[0] + (f" (and {len(why) - 1} more)" if len(why) > 1 else "")
