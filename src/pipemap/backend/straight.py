@@ -13,8 +13,8 @@ sliding-window SBA (`BundleProblem`) runs over its last `bundle.window` keyframe
 of the a-priori radius fitted to the window's points (eq. 2-6), its axis allowed the small bend of
 a sagging run (`bundle.bend_knot_m`, `pipemap.geometry.bend`). Gauge: every pose older
 than the window and every pose of the window already solved by a previous window is held
-(`fixed_overlap` limits that to the oldest few), so consecutive windows chain; the first window
-holds its first pose. A section's last keyframes get a final (partial) window when it ends.
+(`fixed_share` limits that to the oldest share, `fixed_overlap` to the oldest few), so consecutive
+windows chain; the first window holds its first pose. A section's last keyframes get a final (partial) window when it ends.
 
 Metric scale comes from the radius alone. The section starts at unit scale (one unit per first
 keyframe step); before its first window solve, the whole section is scaled by r / free_radius of
@@ -438,6 +438,8 @@ class StraightVO:
             fixed = [0]
         else:
             fixed = np.flatnonzero(numbers <= self._solved_until)
+            if self.s.fixed_share is not None:
+                fixed = fixed[: max(int(round(self.s.fixed_share * len(fixed))), 1)]
             if self.s.fixed_overlap is not None:
                 fixed = fixed[: max(self.s.fixed_overlap, 1)]
             fixed = fixed.tolist()
