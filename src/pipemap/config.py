@@ -141,13 +141,14 @@ class StraightVOSettings(_Section):
     min_scale_points: int = Field(8, gt=0, description="fewer points: the step keeps the previous step's length")
     first_window: int = Field(20, gt=1, description="keyframes before the first SBA and metric rescale of a section")
     fixed_overlap: int | None = Field(None, gt=0, description="hold at most this many solved poses per window (None: all)")
-    fixed_share: float | None = Field(None, gt=0, le=1, description="hold only the oldest this share of the poses "
+    fixed_share: float | None = Field(0.5, gt=0, le=1, description="hold only the oldest this share of the poses "
                                       "a window has in common with solves before it (None: all). The newest "
                                       "keyframes a window solved saw their points from one side only and keep part "
                                       "of the scale the chain slipped by since the window before (compressed "
                                       "footage: 1-4 % per step over its last 10 keyframes); held, that error "
-                                      "stays. Measured with 0.5: H.264 straight pipe reverse leg +0.23 -> +0.02 %, "
-                                      "loops' ATE 10-15 % lower, but paper-loop route A's T1-T4 0.15 -> 0.26 %")
+                                      "stays. Measured, all against None: H.264 straight pipe reverse leg +0.23 -> "
+                                      "+0.02 %; paper-loop route A seed 1 Table I 0.29 -> 0.14 %, ATE 10.5 -> 5.6 "
+                                      "mm, seed 0 0.15 -> 0.26 % (T1-T4), ATE 10.7 -> 9.3 mm")
     resection_min_points: int | None = Field(20, gt=5, description="a new keyframe's chained pose is refined "
                                              "against the scene points it sees when it sees at least this many "
                                              "(None: off): a perspective camera looking along the pipe trades "
