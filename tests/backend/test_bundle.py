@@ -13,7 +13,7 @@ import pytest
 
 from pipemap.backend import BundleProblem, Observations
 from pipemap.sim.sparse_window import RADIUS, PipeWindow, make_pipe_window
-from pipemap.backend.schur import SchurStructure, block_sum, observation_pairs, solve_damped
+from pipemap.solvers.schur import SchurStructure, block_sum, observation_pairs, solve_damped
 from pipemap.geometry.cylinder import Cylinder, fit_cylinder
 from pipemap.geometry.rotations import log_so3
 

@@ -8,7 +8,7 @@ where u' is the fisheye projection of X into its camera (pixels) and d_i = sqrt(
 the signed distance of point i from the cylinder wall in the paper's 4-DOF parameterisation relative
 to the window's first ("reference") pose (eq. 4-5, `pipemap.geometry.cylinder`). Huber costs are
 minimised by iteratively re-weighted Levenberg-Marquardt with analytic Jacobians and the Schur
-complement on the points (`pipemap.backend.schur`). Outliers: after each of `outlier_passes` stages of
+complement on the points (`pipemap.solvers.schur`). Outliers: after each of `outlier_passes` stages of
 LM, observations whose signed Huber-weighted errors sqrt(w) (u - u') lie more than
 max(mad_k * 1.4826 MAD, huber_px) from their median are set aside (and may come back at a later pass).
 
@@ -37,9 +37,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from pipemap.backend.robust import huber_cost, huber_weights, mad_inliers
-from pipemap.backend.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
-from pipemap.backend.staged_lm import solve_in_stages
+from pipemap.solvers.robust import huber_cost, huber_weights, mad_inliers
+from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
+from pipemap.solvers.staged_lm import solve_in_stages
 from pipemap.camera.base import CameraModel
 from pipemap.geometry.bend import AxisKnots
 from pipemap.geometry.cylinder import Cylinder, CylinderFit, distance_jacobians, local_distance, local_frame

@@ -38,9 +38,9 @@ from threadpoolctl import threadpool_limits
 
 from pipemap.backend.bundle import problem_inputs
 from pipemap.backend.end_cylinders import fit_end_cylinder, fit_end_cylinders
-from pipemap.backend.robust import huber_cost, huber_weights, mad_inliers
-from pipemap.backend.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
-from pipemap.backend.staged_lm import solve_in_stages
+from pipemap.solvers.robust import huber_cost, huber_weights, mad_inliers
+from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
+from pipemap.solvers.staged_lm import solve_in_stages
 from pipemap.camera.base import CameraModel
 from pipemap.errors import PipemapError
 from pipemap.geometry.cylinder import Cylinder, CylinderFit

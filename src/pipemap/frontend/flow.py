@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pipemap.solvers import mad_sigma
+
 
 def _design(d: np.ndarray) -> np.ndarray:
     """Quadratic monomials (1, u, v, u^2/2, uv, v^2/2) of offsets d (..., 2)."""
@@ -59,8 +61,8 @@ def local_quadratic_motion(src: np.ndarray, dst: np.ndarray, at: np.ndarray, nei
         A[~good] = np.eye(cols)
         coef = np.linalg.solve(A, b)  # (M, cols, 2)
         res = np.linalg.norm(Xc @ coef - Y, axis=2)
-        mad = 1.4826 * np.median(res, axis=1, keepdims=True)
-        w = (res <= np.maximum(3.0 * mad, max_residual_px)).astype(float)
+        sigma = mad_sigma(res, centre=0.0, axis=1, keepdims=True)
+        w = (res <= np.maximum(3.0 * sigma, max_residual_px)).astype(float)
     # A point at the edge of its neighbourhood (the rim of the view, the dark far end of the pipe)
     # would take its second derivatives from an extrapolation.
     centred = np.linalg.norm((w[:, None, :] @ d)[:, 0] / np.maximum(w.sum(axis=1), 1)[:, None], axis=1) < 0.4

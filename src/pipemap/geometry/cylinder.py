@@ -31,24 +31,9 @@ from pipemap.errors import PipemapError
 from pipemap.geometry.bend import AxisKnots, bent_distance
 from pipemap.geometry.rotations import look_rotation
 from pipemap.geometry.se3 import camera_point_jacobian, world_to_camera
+from pipemap.solvers import huber_irls, levenberg_marquardt, mad_inliers
 
 _EX, _EY, _EZ = np.eye(3)
-
-
-# Geometry stays below the back end, so the fit carries its own two-line Huber and MAD helpers
-# (the bundle adjuster's versions live in pipemap.backend.robust).
-def _huber_weights(a, k):
-    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300))
-
-
-def _huber_cost(a, k):
-    return np.where(a <= k, a * a, 2 * k * a - k * k)
-
-
-def _mad_inliers(d, k, reference, floor):
-    med = np.median(d[reference])
-    mad = np.median(np.abs(d[reference] - med))
-    return np.abs(d - med) <= max(k * 1.4826 * mad, floor)
 
 
 def rot_x(a) -> np.ndarray:
@@ -246,28 +231,9 @@ def axis_frame(direction: np.ndarray) -> np.ndarray:
 
 
 def _robust_lm(fun, p, huber: float, iterations: int):
-    """Minimise sum huber(r_i(p)) by IRLS Levenberg-Marquardt on a handful of parameters."""
-    r, J = fun(p)
-    cost = _huber_cost(np.abs(r), huber).sum()
-    lam, it = 1e-3, 0
-    for it in range(1, iterations + 1):
-        w = _huber_weights(np.abs(r), huber)
-        H = J.T @ (w[:, None] * J)
-        g = J.T @ (w * r)
-        improved = False
-        while lam < 1e10:
-            step = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), -g)
-            r_new, J_new = fun(p + step)
-            c_new = _huber_cost(np.abs(r_new), huber).sum()
-            if np.isfinite(c_new) and c_new <= cost:
-                p, r, J, improved = p + step, r_new, J_new, True
-                done = cost - c_new <= 1e-12 * cost + 1e-30
-                cost, lam = c_new, max(lam * 0.3, 1e-9)
-                break
-            lam *= 10
-        if not improved or done:
-            break
-    return p, it
+    """Minimise sum huber(r_i(p)) on a handful of parameters: (p, iterations used)."""
+    out = levenberg_marquardt(fun, lambda q, d: q + d, p, iterations=iterations, cost=huber_irls(huber))
+    return out.state, out.iterations
 
 
 def fit_cylinder(points, radius: float, *, reference=None, direction=None, huber: float = 0.005,
@@ -325,7 +291,7 @@ def fit_cylinder(points, radius: float, *, reference=None, direction=None, huber
         if pass_ == outlier_passes:
             break
         d = local_distance(Xm, p, r, jacobians=False)
-        new = keep & _mad_inliers(np.where(keep, d, 0.0), mad_k, inliers, huber)
+        new = keep & mad_inliers(np.where(keep, d, 0.0), mad_k, inliers, huber)
         if np.array_equal(new, inliers) or new.sum() < 5:
             break
         inliers = new

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipemap.config import QualitySettings
-from pipemap.quality.verdict import FAILED, GOOD, SUSPECT, Check, RunVerdict, SectionVerdict, above, below
+from pipemap.quality.verdict import FAILED, SUSPECT, Check, RunVerdict, SectionVerdict, above, below
 
 _MIN_PARALLAX_DEG = 2.0  # tracks seen over less are too poorly triangulated to say anything about the radius
 

@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pipemap.backend.bundle import BundleProblem, BundleResult, BundleState, Observations
-from pipemap.backend.schur import solve_damped
+from pipemap.solvers.schur import solve_damped
 from pipemap.camera import CameraModel
 from pipemap.geometry.cylinder import Cylinder
 from pipemap.straight.sparse_geometry import E_H, wall_points

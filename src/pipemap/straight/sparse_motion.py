@@ -15,12 +15,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
 from pipemap.geometry.rotations import exp_so3
 from pipemap.geometry.se3 import retract
+from pipemap.solvers import levenberg_marquardt, mad_sigma
 from pipemap.straight.sparse_geometry import E_H, wall_coords, wall_offset_jacobian, wall_points
 from pipemap.straight.sparse_sums import WallSums
 
@@ -44,41 +44,6 @@ class KeyframeState:
         return hr
 
 
-def levenberg_marquardt(evaluate: Callable, apply: Callable, state, iterations: int = 20,
-                        tolerance: float = 1e-12):
-    """Minimise |r|^2 over a state updated by `apply(state, step)`; evaluate(state) -> (r, J).
-
-    Marquardt's damping of the normal equations' diagonal; a step is kept only when it lowers the
-    cost. Returns (state, final cost, iterations)."""
-    r, J = evaluate(state)
-    cost = float(r @ r)
-    lam = 1e-4
-    it = 0
-    for it in range(1, iterations + 1):
-        H = J.T @ J
-        g = J.T @ r
-        accepted = False
-        while lam < 1e12:
-            A = H + lam * np.diag(np.diag(H) + 1e-12 * (np.trace(H) / len(H) + 1e-30))
-            try:
-                step = np.linalg.solve(A, -g)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            new = apply(state, step)
-            r_new, J_new = evaluate(new)
-            c_new = float(r_new @ r_new)
-            if np.isfinite(c_new) and c_new <= cost:
-                done = cost - c_new <= tolerance * max(cost, 1e-300)
-                state, r, J, cost, accepted = new, r_new, J_new, c_new, True
-                lam = max(lam * 0.1, 1e-12)
-                break
-            lam *= 10
-        if not accepted or done:
-            break
-    return state, cost, it
-
-
 def _one_dof_residuals(kf: KeyframeState, sums: WallSums, radius: float, used: np.ndarray):
     def evaluate(dh):
         C = kf.C + dh[0] * E_H
@@ -95,8 +60,8 @@ def estimate_one_dof(kf: KeyframeState, sums: WallSums, radius: float, iteration
     used = sums.n(kf.gid) > 0
     if used.sum() < 1:
         return 0.0, 0
-    dh, _, _ = levenberg_marquardt(_one_dof_residuals(kf, sums, radius, used), lambda s, d: s + d,
-                                   np.zeros(1), iterations)
+    dh = levenberg_marquardt(_one_dof_residuals(kf, sums, radius, used), lambda s, d: s + d, np.zeros(1),
+                             iterations=iterations).state
     kf.C = kf.C + dh[0] * E_H
     return float(dh[0]), int(used.sum())
 
@@ -116,8 +81,8 @@ def refine_six_dof(kf: KeyframeState, sums: WallSums, radius: float, iterations:
             r, J, _ = sums.residuals(g, hr, J_hr @ J_x)
             return r, J
 
-        (kf.R, kf.C), _, _ = levenberg_marquardt(evaluate, lambda p, d: retract(p[0], p[1], d), (kf.R, kf.C),
-                                                 iterations)
+        kf.R, kf.C = levenberg_marquardt(evaluate, lambda p, d: retract(p[0], p[1], d), (kf.R, kf.C),
+                                         iterations=iterations).state
     kf.hr = kf.estimates(radius)
     sums.add(kf.gid, kf.hr)
     return int(used.sum())
@@ -150,6 +115,5 @@ def gate_outliers(kf: KeyframeState, sums: WallSums, hr: np.ndarray, mad_k: floa
     d[~np.all(np.isfinite(hr), axis=1)] = np.inf
     if used.sum() < 3:
         return used & ~np.isfinite(d)
-    med = np.median(d[used])
-    limit = max(mad_k * 1.4826 * med, floor_m)
+    limit = max(mad_k * mad_sigma(d[used], centre=0.0), floor_m)
     return used & (d > limit)

@@ -15,10 +15,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
 from pipemap.camera import CameraModel
+from pipemap.solvers import levenberg_marquardt, mad_sigma
 from pipemap.straight.sparse_geometry import E_H, wall_offset_jacobian
 
 
@@ -109,37 +109,6 @@ def _wall_from_centres(C: np.ndarray, d: np.ndarray, radius: float) -> np.ndarra
     return C + kappa[:, None] * d
 
 
-def _levenberg_marquardt(fun, jac, x, iterations: int, tolerance: float = 1e-12) -> np.ndarray:
-    """Levenberg-Marquardt on the normal equations: the Jacobian is sparse and tall (pairs x keyframes),
-    J^T J is small."""
-    r = fun(x)
-    cost = float(r @ r)
-    lam = 1e-4
-    for _ in range(iterations):
-        J = jac(x)
-        H = (J.T @ J).toarray()
-        g = J.T @ r
-        d = np.diag(H).copy()
-        while lam < 1e12:
-            try:
-                step = np.linalg.solve(H + lam * np.diag(d + 1e-12 * d.mean()), -g)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            r_new = fun(x + step)
-            c_new = float(r_new @ r_new)
-            if np.isfinite(c_new) and c_new <= cost:
-                done = cost - c_new <= tolerance * cost
-                x, r, cost, lam = x + step, r_new, c_new, max(lam * 0.1, 1e-12)
-                break
-            lam *= 10
-        else:
-            break
-        if done:
-            break
-    return x
-
-
 @dataclass(frozen=True)
 class OffsetResult:
     offset: np.ndarray  # (C_X, C_Y)
@@ -158,9 +127,9 @@ def optimise_offset(batch: OffsetBatch, camera: CameraModel, radius: float, R0: 
     for _ in range(2):  # solve, drop pairs beyond max(3 x 1.4826 MAD, 1 px) (mismatches), solve again
         fun = lambda x: offset_residuals(x, batch, R0, camera, radius)  # noqa: E731
         jac = lambda x: offset_residuals(x, batch, R0, camera, radius, jacobian=True, sparse=True)[1]  # noqa: E731
-        x = _levenberg_marquardt(fun, jac, x, iterations=100)
+        x = levenberg_marquardt(lambda x: (fun(x), jac(x)), lambda x, d: x + d, x, iterations=100).state
         err = np.linalg.norm(fun(x).reshape(-1, 2), axis=1)
-        keep = err <= max(3 * 1.4826 * np.median(err), outlier_px)
+        keep = err <= max(3 * mad_sigma(err, centre=0.0), outlier_px)
         if keep.all() or keep.sum() < len(x0):
             break
         batch = batch.subset(keep)

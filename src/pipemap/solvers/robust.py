@@ -25,6 +25,25 @@ def huber_cost(a: np.ndarray, k: float) -> np.ndarray:
     return np.where(a <= k, a * a, 2.0 * k * a - k * k)
 
 
+def huber_irls(k: float, group: int = 1):
+    """The Huber cost for solvers.lm: cost(r) -> (total, weights) of residuals r whose sizes are |r|, or the
+    norms of consecutive groups of `group` components (a 2D reprojection or tangent-plane error)."""
+    def cost(r: np.ndarray) -> tuple[float, np.ndarray]:
+        a = np.abs(r) if group == 1 else np.linalg.norm(r.reshape(-1, group), axis=1)
+        w = huber_weights(a, k)
+        return float(huber_cost(a, k).sum()), (w if group == 1 else np.repeat(w, group))
+    return cost
+
+
+def mad_sigma(x: np.ndarray, centre: float | np.ndarray | None = None, axis=None, keepdims: bool = False):
+    """Robust standard deviation 1.4826 x the median absolute deviation of x from `centre` (default: the
+    median; 0 for sizes such as distances or residual norms, whose spread is measured from zero)."""
+    x = np.asarray(x, float)
+    if centre is None:
+        centre = np.median(x, axis=axis, keepdims=True)
+    return MAD_TO_SIGMA * np.median(np.abs(x - centre), axis=axis, keepdims=keepdims)
+
+
 def mad_inliers(errors: np.ndarray, k: float, reference: np.ndarray | None = None, floor: float = 0.0) -> np.ndarray:
     """Which rows of signed errors (n,) or (n, d) lie within k robust sigmas of the median.
 
@@ -39,6 +58,5 @@ def mad_inliers(errors: np.ndarray, k: float, reference: np.ndarray | None = Non
     if ref.size == 0:
         return np.ones(len(e), bool)
     med = np.median(ref)
-    mad = np.median(np.abs(ref - med))
-    bound = max(k * MAD_TO_SIGMA * mad, floor)
+    bound = max(k * mad_sigma(ref, med), floor)
     return np.all(np.abs(e2 - med) <= bound, axis=1)
