@@ -106,6 +106,31 @@ def test_existing_output_refused(runs, tmp_path):
     assert (out / "keep.txt").read_text() == "mine"
 
 
+def test_cli_force_rule(runs, tmp_path):
+    """run and evaluate refuse an existing output, replace it with --force, and never replace the dataset."""
+    from typer.testing import CliRunner
+
+    from pipemap.cli import app
+
+    data = runs[0]
+    runner = CliRunner()
+    out = tmp_path / "taken"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    refused = runner.invoke(app, ["run", str(data), "--out", str(out), "--method", "network"])
+    assert refused.exit_code != 0 and "already exists" in refused.output and (out / "keep.txt").exists()
+    done = runner.invoke(app, ["run", str(data), "--out", str(out), "--method", "network", "--force"])
+    assert done.exit_code == 0, done.output
+    assert (out / "run.json").is_file() and not (out / "keep.txt").exists()
+    assert runner.invoke(app, ["evaluate", str(out), str(data)]).exit_code == 0
+    again = runner.invoke(app, ["evaluate", str(out), str(data)])
+    assert again.exit_code != 0 and "metrics.json" in again.output and "--force" in again.output
+    assert runner.invoke(app, ["evaluate", str(out), str(data), "--force"]).exit_code == 0
+    own = runner.invoke(app, ["run", str(data), "--out", str(data), "--force"])
+    assert own.exit_code != 0 and "would replace the input" in own.output
+    assert (data / "dataset.yaml").is_file()
+
+
 def test_sections_rated_and_strict_exit(runs, tmp_path):
     """The straight run is rated good from its own figures; limits no run can meet make it failed, which
     --strict turns into exit status 3 while the result folder is still written."""

@@ -28,6 +28,9 @@ app = typer.Typer(
 console = Console()
 err_console = Console(stderr=True)
 
+FORCE_OPTION = typer.Option(False, "--force", help="Replace an existing output; the old one is removed only once the "
+                                                    "new one is complete.")
+
 
 def friendly(fn: Callable) -> Callable:
     """Turn input problems into one line on stderr and a non-zero exit code, never a traceback."""
@@ -211,12 +214,14 @@ def simulate(
         + ", ".join(__import__("pipemap.sim.effects", fromlist=["PROFILES"]).PROFILES)
         + ") or a YAML file of CameraEffects (may start from 'profile: NAME'): video, overlay, gain, shutter, "
         "interlace, link. Default: the preset's (none for most)."),
+    force: bool = FORCE_OPTION,
 ) -> None:
     """Render a synthetic dataset with exact ground truth (dataset.yaml, images/ or a video, ground_truth/)."""
+    from pipemap.output import forced
     from pipemap.sim.simulate import simulate as render_dataset
     from pipemap.trajectory import read_tum
 
-    with frame_progress(f"rendering {preset}") as progress:
+    with forced(out, force), frame_progress(f"rendering {preset}") as progress:
         render_dataset(preset, out, width=width, height=height, frames=frames, seed=seed, route=route,
                        progress=progress, spacing_m=spacing, motion_blur=motion_blur, texture=texture,
                        workers=workers, effects=camera_effects)
@@ -343,6 +348,7 @@ def track(
     out: Path = typer.Option(..., "--out", help="Result folder to create (must not exist or be empty)."),
     config: Optional[Path] = CONFIG_OPTION,
     set_: List[str] = SET_OPTION,
+    force: bool = FORCE_OPTION,
 ) -> None:
     """Run the fisheye front end alone: keyframes, feature tracks, relative poses (unit steps).
 
@@ -350,9 +356,10 @@ def track(
     step), tracks.csv and run.json.
     """
     from pipemap.frontend import run_tracking
+    from pipemap.output import forced
 
     settings = _load_settings(config, set_)
-    with frame_progress("tracking", keyframes=True) as progress:
+    with forced(out, force, [dataset]), frame_progress("tracking", keyframes=True) as progress:
         result = run_tracking(dataset, out, settings, progress=progress)
     console.print(f"{result.image_count} frames, {len(result.keyframes)} keyframes, "
                   f"{result.frames_per_second:.1f} frames/s -> {out}")
@@ -371,6 +378,7 @@ def run_command(
     set_: List[str] = SET_OPTION,
     strict: bool = typer.Option(False, "--strict", help="exit with status 3 when any section is rated suspect or "
                                 "failed (the result folder is still written)"),
+    force: bool = FORCE_OPTION,
 ) -> None:
     """Map a dataset and write trajectory.tum, frames.csv, run.json (and sparse.ply, or unrolled/).
 
@@ -380,12 +388,21 @@ def run_command(
     looking at the wall of a straight pipe, the 2010 report): image registration by full search,
     Lucas-Kanade or both; sparse-cylinder: sparse VO held to the wall. auto measures which way the
     camera looks over the first frames and says what it chose."""
+    from pipemap.output import forced
+
+    settings = _load_settings(config, set_)
+    with forced(out, force, [dataset]):
+        quality = _map(dataset, out, method, settings)
+    _verdict(quality, strict)
+
+
+def _map(dataset: Path, out: Path, method: str, settings):
+    """`pipemap run` without its output rule: map with `method` and print what was found; the self-checks."""
     from pipemap.dataset import load_dataset
     from pipemap.pipeline import run_pipeline
     from pipemap.straight import DENSE_METHODS, run_dense
     from pipemap.straight.sparse import SPARSE_METHOD, run_sparse
 
-    settings = _load_settings(config, set_)
     if method == "auto":
         from pipemap.view import camera_view
 
@@ -400,8 +417,7 @@ def run_command(
         if dense.mount is not None:
             console.print(dense.mount.line(), markup=False)
         console.print(f"scale: {dense.zeta:.1f} px/m from {dense.zeta_source}", markup=False)
-        _verdict(dense.quality, strict)
-        return
+        return dense.quality
     if method == SPARSE_METHOD:
         with frame_progress(method) as progress:
             sparse = run_sparse(dataset, out, settings, progress=progress)
@@ -409,8 +425,7 @@ def run_command(
                       f"C_X {sparse.offset[0] * 1e3:.2f} mm, C_Y {sparse.offset[1] * 1e3:.2f} mm -> {out}")
         if sparse.mount is not None:
             console.print(sparse.mount.line(), markup=False)
-        _verdict(sparse.quality, strict)
-        return
+        return sparse.quality
     if method not in ("network", "fisheye"):
         raise PipemapError(f"unknown method {method!r} (expected auto, network, {', '.join(DENSE_METHODS)}, "
                            f"{SPARSE_METHOD})", "--method")
@@ -426,7 +441,7 @@ def run_command(
         console.print(f"mask: {100 * m['masked_fraction']:.1f} % of the image not used"
                       + (" (dataset mask" + (" and static overlay)" if result.mask.static else ")") if m["given"]
                          else " (static overlay found in the footage)"), markup=False)
-    _verdict(result.quality, strict)
+    return result.quality
 
 
 def _verdict(quality, strict: bool) -> None:
@@ -457,11 +472,15 @@ def _verdict(quality, strict: bool) -> None:
 def evaluate(
     result_dir: Path = typer.Argument(..., help="Result folder with trajectory.tum (and junctions.yaml)."),
     dataset_dir: Path = typer.Argument(..., help="Dataset folder with ground_truth/."),
+    force: bool = typer.Option(False, "--force", help="Replace the result's metrics.json of an earlier evaluation."),
 ) -> None:
     """Compare a result with the ground truth; write RESULT_DIR/metrics.json and print the tables."""
     from pipemap.evaluation import evaluate as evaluate_result
     from pipemap.evaluation import print_tables
 
+    metrics = result_dir / "metrics.json"
+    if metrics.exists() and not force:
+        raise PipemapError("already exists; pass --force to replace it", metrics)
     result = evaluate_result(result_dir, dataset_dir)
     print_tables(result, console)
     console.print(f"metrics written to {result_dir / 'metrics.json'}")

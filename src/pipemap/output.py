@@ -7,7 +7,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 from pipemap.errors import PipemapError
 
@@ -82,3 +82,31 @@ def result_folder(out: Path) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+@contextlib.contextmanager
+def forced(out: Path, force: bool, inputs: Iterable[Path] = ()) -> Iterator[None]:
+    """--force for a command that writes `out` (a result folder or a file) through result_folder or an atomic
+    write: an existing `out` is set aside while the command runs, removed once the command has finished,
+    and put back if it fails or is interrupted, so the old output is lost only to a complete new one.
+    Without force nothing happens here (the writers refuse an existing output themselves). An `out` that is
+    or holds one of `inputs` is refused: --force never replaces what the user gave."""
+    out = Path(out)
+    if not force or not out.exists() or (out.is_dir() and not any(out.iterdir())):
+        yield
+        return
+    target = out.resolve()
+    for given in inputs:
+        given = Path(given).resolve()
+        if given == target or target in given.parents:
+            raise PipemapError(f"--force would replace the input {given}; choose another --out", out)
+    aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.replaced-", dir=out.parent)) / out.name
+    os.replace(out, aside)
+    try:
+        yield
+    except BaseException:
+        if not out.exists():
+            os.replace(aside, out)
+        shutil.rmtree(aside.parent, ignore_errors=True)
+        raise
+    shutil.rmtree(aside.parent, ignore_errors=True)
