@@ -80,8 +80,8 @@ def main() -> None:
         t0 = time.perf_counter()
         fit = fit_cylinder(w.points0, scene.RADIUS, reference=(w.R0[0], w.t0[0]))
         fit_s = time.perf_counter() - t0
-        res = BundleProblem(w.camera, (w.R0, w.t0), w.points0, observations_of(w), cylinder=fit).solve()
-        free = BundleProblem(w.camera, (w.R0, w.t0), w.points0, observations_of(w), tau=0.0).solve()
+        res = BundleProblem(w.camera, (w.R0, w.t0), w.points0, observations_of(w), cylinder=fit, huber_px=1.0).solve()
+        free = BundleProblem(w.camera, (w.R0, w.t0), w.points0, observations_of(w), tau=0.0, huber_px=1.0).solve()
         a, b = accuracy(w, res), accuracy(w, free)
         run = {"seed": seed, "points": len(w.points), "observations": len(observations_of(w)), "cylinder_fit_s": fit_s,
                "cylinder_fit_free_radius_m": fit.free_radius, "with_cylinder": a, "tau_zero": b}

@@ -130,6 +130,10 @@ class BundleSettings(_Section):
                                     "differ beyond their noise, as when a joint beyond the piece next to the tee kinks")
     tee_model: bool = Field(True, description="join the straight sections through each tee with the two-cylinder "
                             "model SBA (III-D); off: the VO's chaining and the end cylinders' meeting point")
+    tee_hold_keyframes: int = Field(10, gt=0, description="keyframes of the section before a tee in its solve, held "
+                                    "where the section's VO put them")
+    tee_attach_keyframes: int = Field(20, gt=0, description="keyframes of the section after a tee solved with it "
+                                      "(from P_b on); later ones take the same rigid correction")
 
 
 class StraightVOSettings(_Section):
@@ -289,6 +293,11 @@ class SparseSettings(_Section):
     offset_wall_sigma_m: float = Field(1e-4, gt=0, description="bundle batch: points may leave the wall by about this "
                                        "per pixel of reprojection error (the stiffness of the known radius)")
     offset_batch_iterations: int = Field(50, gt=0, description="bundle batch: Levenberg-Marquardt iterations")
+    offset_huber_px: float = Field(1.0, gt=0, description="bundle batch and sliding bundle: Huber threshold of the "
+                                   "reprojection error")
+    offset_mad_k: float = Field(3.0, gt=0, description="bundle batch and sliding bundle: outliers beyond k x 1.4826 "
+                                "MAD of the reprojection errors")
+    offset_outlier_passes: int = Field(3, ge=0, description="bundle batch and sliding bundle: MAD outlier passes")
     offset_max_sigma: float = Field(0.003, gt=0, description="bundle batch: the offset counts as determined when its "
                                     "standard deviation is within this fraction of the camera's distance to the wall "
                                     "(that fraction is the scale error it brings)")

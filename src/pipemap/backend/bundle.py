@@ -37,9 +37,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from pipemap.config import BundleSettings
 from pipemap.solvers.robust import huber_cost, huber_weights, mad_inliers
 from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
 from pipemap.solvers.staged_lm import solve_in_stages
+
+_B = BundleSettings()  # the problems' defaults are the settings' own
 from pipemap.camera.base import CameraModel
 from pipemap.geometry.bend import AxisKnots
 from pipemap.geometry.cylinder import Cylinder, CylinderFit, distance_jacobians, local_distance, local_frame
@@ -148,11 +151,12 @@ class BundleProblem:
 
     def __init__(self, camera: CameraModel, poses, points, observations, *, fixed_poses=(0,),
                  cylinder: Cylinder | CylinderFit | None = None, cylinder_reference: int = 0,
-                 cylinder_points: np.ndarray | None = None, tau: float = 2.5e5, huber_px: float = 1.0,
-                 huber_m: float = 0.005, mad_k: float = 3.0, outlier_passes: int = 3, max_iterations: int = 20,
+                 cylinder_points: np.ndarray | None = None, tau: float = _B.tau, huber_px: float = _B.huber_px,
+                 huber_m: float = _B.huber_m, mad_k: float = _B.mad_k, outlier_passes: int = _B.outlier_passes,
+                 max_iterations: int = _B.max_iterations,
                  fixed_distance: tuple[int, int] | None = None, distance_weight: float = 1e6,
-                 bend_knot_m: float | None = None, bend_kink_deg: float = 0.5,
-                 bend_offset_mm: float = 2.0, bend_sag_mm: float = 10.0):
+                 bend_knot_m: float | None = None, bend_kink_deg: float = _B.bend_kink_deg,
+                 bend_offset_mm: float = _B.bend_offset_mm, bend_sag_mm: float = _B.bend_sag_mm):
         self.camera = camera
         R, t, X, obs = problem_inputs(poses, points, observations)
         N, M = len(R), len(X)

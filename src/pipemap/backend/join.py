@@ -74,10 +74,11 @@ def _move_cylinder(T: np.ndarray, c: Cylinder | None) -> Cylinder | None:
 
 
 def join_sections(result: StraightResult, keyframes: list[Keyframe], sections: list[MappedSection],
-                  junctions: list[MappedJunction], camera: CameraModel, radius: float, settings: Settings,
-                  hold: int = 10, attach: int = 20) -> tuple[np.ndarray, np.ndarray, list[JoinReport]]:
+                  junctions: list[MappedJunction], camera: CameraModel, radius: float,
+                  settings: Settings) -> tuple[np.ndarray, np.ndarray, list[JoinReport]]:
     """Corrected poses (N, 4, 4) and points (M, 3, in the order of result.points), and a report per
     junction; `junctions[i].centroid` is set to the model's I where the solve succeeds."""
+    hold, attach = settings.bundle.tee_hold_keyframes, settings.bundle.tee_attach_keyframes
     poses = result.poses.copy()
     order = np.argsort(result.point_tracks)
     tids = result.point_tracks[order]

@@ -36,11 +36,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from pipemap.config import BundleSettings
 from pipemap.backend.bundle import problem_inputs
 from pipemap.backend.end_cylinders import fit_end_cylinder, fit_end_cylinders
 from pipemap.solvers.robust import huber_cost, huber_weights, mad_inliers
 from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
 from pipemap.solvers.staged_lm import solve_in_stages
+
+_B = BundleSettings()  # the problems' defaults are the settings' own
 from pipemap.camera.base import CameraModel
 from pipemap.errors import PipemapError
 from pipemap.geometry.cylinder import Cylinder, CylinderFit
@@ -119,9 +122,9 @@ class JunctionProblem:
 
     def __init__(self, camera: CameraModel, poses, points, observations, red, blue, *, red_pose: int,
                  blue_pose: int, fixed=(), attached=(), radius: float | None = None, model=None,
-                 cylinder_points: np.ndarray | None = None, through: str | None = "auto", tau: float = 2.5e5,
-                 huber_px: float = 1.0, huber_m: float = 0.005, mad_k: float = 3.0, outlier_passes: int = 3,
-                 max_iterations: int = 20):
+                 cylinder_points: np.ndarray | None = None, through: str | None = "auto", tau: float = _B.tau,
+                 huber_px: float = _B.huber_px, huber_m: float = _B.huber_m, mad_k: float = _B.mad_k,
+                 outlier_passes: int = _B.outlier_passes, max_iterations: int = _B.max_iterations):
         self.camera = camera
         R, t, X, obs = problem_inputs(poses, points, observations)
         N, M = len(R), len(X)

@@ -35,10 +35,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pipemap.backend.bundle import BundleProblem, BundleResult, BundleState, Observations
-from pipemap.solvers.schur import solve_damped
 from pipemap.camera import CameraModel
+from pipemap.config import SparseSettings
 from pipemap.geometry.cylinder import Cylinder
+from pipemap.solvers.schur import solve_damped
 from pipemap.straight.sparse_geometry import E_H, wall_points
+
+_S = SparseSettings()  # the defaults are the settings' own
 
 
 @dataclass(frozen=True)
@@ -101,9 +104,9 @@ def _solve_on_wall(gids, uvs, bearings, R, C, camera, radius, held: int, wall_si
 
 
 def bundle_window(gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[np.ndarray], R: np.ndarray,
-                  C: np.ndarray, camera: CameraModel, radius: float, held: int, *, wall_sigma_m: float = 1e-4,
-                  huber_px: float = 1.0, mad_k: float = 3.0, outlier_passes: int = 3,
-                  iterations: int = 50) -> tuple[np.ndarray, np.ndarray, float] | None:
+                  C: np.ndarray, camera: CameraModel, radius: float, held: int, *, wall_sigma_m: float = _S.offset_wall_sigma_m,
+                  huber_px: float = _S.offset_huber_px, mad_k: float = _S.offset_mad_k,
+                  outlier_passes: int = _S.offset_outlier_passes, iterations: int = _S.offset_batch_iterations) -> tuple[np.ndarray, np.ndarray, float] | None:
     """The sliding refinement as a bundle adjustment on the wall: the window's keyframes (R (K, 3, 3), C (K, 3) in
     the pipe frame), the first `held` of them fixed where earlier windows left them, the rest free in all six
     degrees of freedom, the points on a wall of the known radius. The wall's axis is free in the solve (no other
@@ -142,9 +145,9 @@ def onto_axis(cylinder: Cylinder, R: np.ndarray, C: np.ndarray, anchor_R: np.nda
 
 
 def bundle_batch(gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[np.ndarray], R: np.ndarray,
-                 C: np.ndarray, camera: CameraModel, radius: float, *, wall_sigma_m: float = 1e-4,
-                 huber_px: float = 1.0, mad_k: float = 3.0, outlier_passes: int = 3,
-                 iterations: int = 50) -> BatchResult | None:
+                 C: np.ndarray, camera: CameraModel, radius: float, *, wall_sigma_m: float = _S.offset_wall_sigma_m,
+                 huber_px: float = _S.offset_huber_px, mad_k: float = _S.offset_mad_k,
+                 outlier_passes: int = _S.offset_outlier_passes, iterations: int = _S.offset_batch_iterations) -> BatchResult | None:
     """Bundle adjustment of the batch's keyframes (poses R (K, 3, 3), C (K, 3) in the pipe frame as
     start) and wall points, with the pipe axis free relative to the first keyframe. None when the
     batch has too few shared points to constrain its unknowns."""

@@ -162,8 +162,7 @@ class SparseOdometry:
         R = np.array([k.R for k in kfs])
         C = np.array([k.C for k in kfs])
         res = bundle_batch([k.gid for k in kfs], [k.uv for k in kfs], [k.bearings for k in kfs], R, C, self.camera,
-                           self.radius, wall_sigma_m=self.sparse.offset_wall_sigma_m,
-                           iterations=self.sparse.offset_batch_iterations)
+                           self.radius, **self._bundle_options())
         if res is None or not np.hypot(*res.offset) < _MAX_OFFSET_FRACTION * self.radius:
             return None, np.inf  # too little shared structure, or the batch left the pipe
         fraction = np.hypot(*res.offset_sigma) / wall_distance(res.R[0], res.C[0], self.radius)
@@ -173,6 +172,12 @@ class SparseOdometry:
         return BatchSummary("bundle", res.offset, res.rms_px, res.observations, res.offset_sigma,
                             fraction <= self.sparse.offset_max_sigma, used, res.mount, res.mount_covariance,
                             tuple(int(k.index) for k in kfs), fraction)
+
+    def _bundle_options(self) -> dict:
+        """The bundle batch's and the sliding bundle's settings."""
+        sp = self.sparse
+        return dict(wall_sigma_m=sp.offset_wall_sigma_m, huber_px=sp.offset_huber_px, mad_k=sp.offset_mad_k,
+                    outlier_passes=sp.offset_outlier_passes, iterations=sp.offset_batch_iterations)
 
     def _bundle_batch(self, kfs: list[KeyframeState]) -> None:
         res, fraction = self._from_best_start(kfs, self._run_bundle)
@@ -312,8 +317,7 @@ class SparseOdometry:
         sub = [kfs[i] for i in pick]
         out = bundle_window([k.gid for k in sub], [k.uv for k in sub], [k.bearings for k in sub],
                             np.array([k.R for k in sub]), np.array([k.C for k in sub]), self.camera, self.radius, held,
-                            wall_sigma_m=self.sparse.offset_wall_sigma_m,
-                            iterations=self.sparse.offset_batch_iterations)
+                            **self._bundle_options())
         if out is None:
             return
         self._replace_poses(sub[held:], out[0][held:], out[1][held:])
