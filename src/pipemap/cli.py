@@ -274,7 +274,8 @@ def calibrate(
     check_new_file(out, force)
     paths = expand_glob(images)
     with console.status(f"calibrating {model} from {len(paths)} images"):
-        result = calibrate_images(paths, cols_rows, square, model, max_theta_deg=max_theta_deg, fix=tuple(fix), source=images)
+        result = calibrate_images(paths, cols_rows, square, model, max_theta_deg=max_theta_deg, fix=tuple(fix),
+                                  source=images)
     cv = None
     if folds:
         with console.status(f"cross-validating in {min(folds, len(result.corners))} folds"):
@@ -309,7 +310,8 @@ def calibrate(
 def gain_mask(
     images: str = typer.Argument(..., help='Glob of white-card images, e.g. "card/*.png".'),
     out: Path = typer.Option(Path("gain_mask.png"), "--out", help="16-bit PNG to write."),
-    sigma: Optional[float] = typer.Option(None, "--sigma", help="Gaussian smoothing in pixels (default from settings)."),
+    sigma: Optional[float] = typer.Option(None, "--sigma",
+                                          help="Gaussian smoothing in pixels (default from settings)."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output file."),
 ) -> None:
     """Build a flat-field gain mask from white-card images (2010 report, section 3.2)."""
@@ -421,8 +423,8 @@ def _map(dataset: Path, out: Path, method: str, settings):
     if method == SPARSE_METHOD:
         with frame_progress(method) as progress:
             sparse = run_sparse(dataset, out, settings, progress=progress)
-        console.print(f"{sparse.frames} frames, {len(sparse.indices)} keyframes ({method}), camera offset from the axis "
-                      f"C_X {sparse.offset[0] * 1e3:.2f} mm, C_Y {sparse.offset[1] * 1e3:.2f} mm -> {out}")
+        console.print(f"{sparse.frames} frames, {len(sparse.indices)} keyframes ({method}), camera offset from "
+                      f"the axis C_X {sparse.offset[0] * 1e3:.2f} mm, C_Y {sparse.offset[1] * 1e3:.2f} mm -> {out}")
         if sparse.mount is not None:
             console.print(sparse.mount.line(), markup=False)
         return sparse.quality

@@ -58,19 +58,26 @@ class FrontendSettings(_Section):
     static_mask_max_fraction: float = Field(0.3, gt=0, le=1, description="a static mask covering more of the image "
                                             "than this is not used (the robot barely moved in the frames sampled)")
     min_distance_px: int = Field(3, ge=1, description="non-maximum suppression radius of Harris corners")
-    harris_quality: float = Field(0.001, ge=0, lt=1, description="corners weaker than this x the region's strongest are dropped")
+    harris_quality: float = Field(0.001, ge=0, lt=1, description="corners weaker than this x the region's strongest "
+                                                                 "are dropped")
     min_similarity: float = Field(0.5, ge=-1, le=1, description="smallest cosine similarity of a descriptor match")
     max_flow_px: float = Field(80.0, gt=0, description="descriptor match candidates lie within this many pixels")
-    ransac_threshold_px: float = Field(0.7, gt=0, description="angular inlier threshold is at least this many pixels at the centre")
+    ransac_threshold_px: float = Field(0.7, gt=0, description="angular inlier threshold is at least this many pixels "
+                                                              "at the centre")
     ransac_max_trials: int = Field(500, gt=0)
-    track_threshold_factor: float = Field(2.0, gt=0, description="a match continues its track within this x the RANSAC threshold of the refined pose")
+    track_threshold_factor: float = Field(2.0, gt=0, description="a match continues its track within this x the RANSAC "
+                                                                 "threshold of the refined pose")
     min_inliers: int = Field(15, gt=5, description="fewer pose inliers means the frame is not tracked")
     zncc_patch: int = Field(11, gt=2, description="side of the raw-image ZNCC template (px)")
-    guided_search_px: int = Field(8, gt=0, description="half-size of the guided ZNCC window around the predicted position")
-    guided_neighbours: int = Field(5, gt=0, description="matched neighbours whose median flow predicts a feature's position")
-    refine_matches_px: int = Field(2, ge=0, description="descriptor matches are re-located by ZNCC within this many px (0: off)")
+    guided_search_px: int = Field(8, gt=0, description="half-size of the guided ZNCC window around the predicted "
+                                                       "position")
+    guided_neighbours: int = Field(5, gt=0, description="matched neighbours whose median flow predicts a feature's "
+                                                        "position")
+    refine_matches_px: int = Field(2, ge=0, description="descriptor matches are re-located by ZNCC within this many px "
+                                                        "(0: off)")
     duplicate_px: float = Field(2.0, ge=0, description="an unmatched corner this close to a guided match is dropped")
-    max_lost_frames: int = Field(5, gt=0, description="after this many untracked frames, start again from a new keyframe")
+    max_lost_frames: int = Field(5, gt=0, description="after this many untracked frames, start again from a new "
+                                                      "keyframe")
     flatten_lighting: bool = Field(True, description="detect, describe and correlate on log(I) minus its local mean")
     lighting_sigma_px: float = Field(4.0, gt=0, description="scale of the local mean removed with the lighting (px)")
     dark_level: float = Field(12.0, ge=0, description="no features where the local mean grey level is below this")
@@ -80,8 +87,8 @@ class FrontendSettings(_Section):
                                 "(affine Lucas-Kanade), so that their error does not grow with their length")
     anchor_max_shift_px: float = Field(1.5, gt=0, description="an anchor match farther than this from the ZNCC one is "
                                        "refused, and its track ends")
-    anchor_min_zncc: float = Field(0.7, gt=-1, le=1, description="an anchor match correlating less than this is refused, "
-                                   "and its track ends")
+    anchor_min_zncc: float = Field(0.7, gt=-1, le=1, description="an anchor match correlating less than this is "
+                                   "refused, and its track ends")
     anchor_iterations: int = Field(6, gt=0, description="Lucas-Kanade iterations of the anchor match")
     anchor_max_stretch: float = Field(2.0, gt=1, description="a track ends once its patch is stretched (or shrunk) "
                                       "more than this along any direction since it was first seen: a corner first "
@@ -101,7 +108,8 @@ class ClassificationSettings(_Section):
         0.25, gt=0, lt=1, description="dark blobs: below this fraction of the 1st..99th percentile grey range")
     erosion_px: int = Field(2, ge=0, description="erosion radius in sub-sampled pixels")
     ratio_threshold: float = Field(1.5, gt=0, description="straight if L_p / L is below this")
-    min_cluster_keyframes: int = Field(5, gt=0, description="temporal filter: minimum straight/T run, in the frames classified")
+    min_cluster_keyframes: int = Field(5, gt=0, description="temporal filter: minimum straight/T run, in the frames "
+                                                            "classified")
 
 
 class BundleSettings(_Section):
@@ -144,7 +152,8 @@ class StraightVOSettings(_Section):
     scale_min_parallax_deg: float = Field(0.5, ge=0, description="parallax of the pairs that carry the relative scale")
     min_scale_points: int = Field(8, gt=0, description="fewer points: the step keeps the previous step's length")
     first_window: int = Field(20, gt=1, description="keyframes before the first SBA and metric rescale of a section")
-    fixed_overlap: int | None = Field(None, gt=0, description="hold at most this many solved poses per window (None: all)")
+    fixed_overlap: int | None = Field(None, gt=0, description="hold at most this many solved poses per window (None: "
+                                                              "all)")
     fixed_share: float | None = Field(0.5, gt=0, le=1, description="hold only the oldest this share of the poses "
                                       "a window has in common with solves before it (None: all). The newest "
                                       "keyframes a window solved saw their points from one side only and keep part "
@@ -192,7 +201,8 @@ class LoopClosureSettings(_Section):
                                        "differ by less than this")
     # Relative pose of a pair (what the paper leaves open).
     match_ratio: float = Field(0.8, gt=0, le=1, description="SIFT nearest / second-nearest distance ratio, both ways")
-    sift_size_px: float = Field(8.0, gt=0, description="SIFT keypoint size (px at frontend.reference_px_per_deg, scaled like the front end's sizes)")
+    sift_size_px: float = Field(8.0, gt=0, description="SIFT keypoint size (px at frontend.reference_px_per_deg, "
+                                                       "scaled like the front end's sizes)")
     min_inliers: int = Field(20, gt=5, description="fewer matches agreeing with the metric pose: no edge")
     wall_window_radii: float = Field(2.5, gt=0, description="wall points within this many radii along the pipe "
                                      "of the camera carry the metric scale")
@@ -226,7 +236,8 @@ class AppearanceSettings(_Section):
 class DenseSettings(_Section):
     """Dense straight-pipe VO (2010 report section 4)."""
 
-    scale: float | None = Field(None, gt=0, le=1, description="image reduction; None = the report's quarter resolution, "
+    scale: float | None = Field(None, gt=0, le=1, description="image reduction; None = the report's quarter "
+                                                              "resolution, "
                                 "or less reduced where a quarter-resolution pixel would cover more than "
                                 "wall_mm_per_px of the wall")
     wall_mm_per_px: float = Field(1.0, gt=0, description="scale = None: the coarsest sampling of the wall (mm per "
