@@ -106,7 +106,8 @@ def version_callback(value: bool) -> None:
 
 @app.callback()
 def main(
-    version: bool = typer.Option(False, "--version", callback=version_callback, is_eager=True, help="Print the version."),
+    version: bool = typer.Option(False, "--version", callback=version_callback, is_eager=True,
+                                 help="Print the version."),
 ) -> None:
     """Metric maps of pipe networks from a crawler robot's single camera."""
 
@@ -204,7 +205,8 @@ def simulate(
     height: Optional[int] = typer.Option(None, "--height", help="Image height."),
     frames: Optional[int] = typer.Option(None, "--frames", help="Render only the first N frames of the route."),
     seed: int = typer.Option(0, "--seed", help="Seed of textures, wobble, speed and sensor noise."),
-    route: Optional[str] = typer.Option(None, "--route", help="The preset's route variant (e.g. A, B, forward-reverse)."),
+    route: Optional[str] = typer.Option(None, "--route",
+                                        help="The preset's route variant (e.g. A, B, forward-reverse)."),
     spacing: Optional[float] = typer.Option(None, "--spacing", help="Metres between frames (default: the preset's)."),
     motion_blur: int = typer.Option(1, "--motion-blur", help="Sub-frames averaged per frame (1: no blur)."),
     texture: Optional[str] = typer.Option(None, "--texture", help="Wall style: procedural, brick or gravel (photos)."),

@@ -6,5 +6,5 @@ from pipemap.solvers.lm import LMResult, levenberg_marquardt
 from pipemap.solvers.robust import (MAD_TO_SIGMA, huber_cost, huber_irls, huber_weights, mad_inliers,
                                     mad_sigma)
 
-__all__ = ["LMResult", "levenberg_marquardt", "MAD_TO_SIGMA", "huber_cost", "huber_irls", "huber_weights", "mad_inliers",
-           "mad_sigma"]
+__all__ = ["LMResult", "levenberg_marquardt", "MAD_TO_SIGMA", "huber_cost", "huber_irls", "huber_weights",
+           "mad_inliers", "mad_sigma"]
