@@ -52,6 +52,8 @@ def test_result_folder_follows_formats(runs):
     assert np.allclose(traj.timestamps, np.array(keys) / ds.fps, atol=1e-6)
     run = json.loads((out / "run.json").read_text())
     assert run["frames"] == SIM["frames"] and run["keyframes"] == len(traj)
+    assert (run["format"], run["method"], run["trajectory"]) == ("pipemap-run/2", "network", "keyframes")
+    assert run["camera"] == ds.camera.to_dict() and run["mount"] is None and run["problems"] == []
     assert run["settings"]["bundle"]["tau"] == 2.5e5
     assert {"frontend", "straight_relative", "straight_windows", "write"} <= set(run["seconds"])
     assert run["sections"][0]["scale"] == "cylinder" and run["lost_keyframes"] == 0

@@ -13,7 +13,6 @@ Writes trajectory.tum, junctions.yaml, sparse.ply, appearance.ply, unrolled/, fr
 
 from __future__ import annotations
 
-import json
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -43,6 +42,7 @@ from pipemap.geometry.bend import OFFSET_SIGMA_M
 from pipemap.mapping import WallPiece, write_maps
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.quality import FrameStats, RunVerdict, network_verdict, require_mappable
+from pipemap.results import run_record, write_run_json
 from pipemap.trajectory import Trajectory, write_tum
 from pipemap.view import check_wall_in_view
 
@@ -232,49 +232,32 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
     write_frames_csv(folder / "frames.csv", len(dataset), result.indices.tolist(), labels)
     seconds = dict(seconds)
     seconds["write"] = time.perf_counter() - t0
-    from pipemap import __version__
-
     problems = [f"section {m.number}: {p}" for m in net.sections for p in m.problems]
     problems += [f"{j.id}: only one straight section beside it, centre from the camera path" for j in net.junctions
                  if j.method == "path"]
     problems += [f"{r.junction}: {r.status}" for r in net.joins if r.status != "tee-model"]
-    run = {
-        "version": __version__,
-        "stage": "run",
-        "input": str(dataset.root),
-        "settings": settings.to_dict(),
-        "frontend_pixels": scaled_settings(dataset.camera, settings.frontend),
-        "pipe_radius_m": dataset.radius_m,
-        "frames": front.image_count,
-        "footage": front.footage.to_dict(),
-        "mask": None if front.mask is None else front.mask.to_dict(),
-        "keyframes": len(result.indices),
-        "points": len(result.points),
-        "lost_keyframes": sum(1 for s in result.sections[1:] if not s.linked),
-        "sections": [s.to_dict() for s in result.sections],
-        "straight_sections": [m.to_dict() for m in net.sections],
-        "junction_passes": [dict(j.to_dict(), method=j.method, angle_deg=round(j.angle_deg, 3),
-                           axes_gap_m=round(j.gap_m, 5), first_keyframe=j.first, last_keyframe=j.last)
-                      for j in net.junctions],
-        "junction_clusters": [list(c) for c in classes.clusters],
-        "wall_pieces": net.wall_pieces,
-        "appearance": maps,
-        "tee_solves": [r.to_dict() for r in net.joins],
-        "loop_closure": None if net.revisit is None else net.revisit.to_dict(),
-        "problems": problems,
-        "quality": None if net.quality is None else net.quality.to_dict(),
-        "windows": [w.to_dict() for w in result.windows],
-        "seconds": {k: round(v, 3) for k, v in seconds.items()},
-    }
-    atomic_write_text(folder / "run.json", json.dumps(run, indent=2, default=_json_default) + "\n")
-
-
-def _json_default(v):
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
-    if isinstance(v, float) and not np.isfinite(v):
-        return None
-    raise TypeError(type(v))
+    run = run_record(
+        "network", dataset, settings, frames=front.image_count, keyframes=len(result.indices), trajectory="keyframes",
+        mount=None, footage=front.footage.to_dict(), problems=problems,
+        quality=None if net.quality is None else net.quality.to_dict(), seconds=seconds,
+        stage="run",
+        frontend_pixels=scaled_settings(dataset.camera, settings.frontend),
+        mask=None if front.mask is None else front.mask.to_dict(),
+        points=len(result.points),
+        lost_keyframes=sum(1 for s in result.sections[1:] if not s.linked),
+        sections=[s.to_dict() for s in result.sections],
+        straight_sections=[m.to_dict() for m in net.sections],
+        junction_passes=[dict(j.to_dict(), method=j.method, angle_deg=round(j.angle_deg, 3),
+                              axes_gap_m=round(j.gap_m, 5), first_keyframe=j.first, last_keyframe=j.last)
+                         for j in net.junctions],
+        junction_clusters=[list(c) for c in front.classes.clusters],
+        wall_pieces=net.wall_pieces,
+        appearance=maps,
+        tee_solves=[r.to_dict() for r in net.joins],
+        loop_closure=None if net.revisit is None else net.revisit.to_dict(),
+        windows=[w.to_dict() for w in result.windows],
+    )
+    write_run_json(folder, run)
 
 
 def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
