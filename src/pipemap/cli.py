@@ -437,7 +437,7 @@ def _map(dataset: Path, out: Path, method: str, settings):
         result = run_pipeline(dataset, out, settings, progress=progress, on_stage=stage_notice)
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())
     console.print(f"{result.image_count} frames, {result.keyframe_count} keyframes, "
-                  f"{len(result.junctions)} junctions, {len(result.straight.points)} points -> {out}  ({stages})")
+                  f"{len(result.junctions)} junctions, {len(result.map.points)} points -> {out}  ({stages})")
     if result.footage.repeated or result.footage.drops or result.footage.damage:
         console.print(result.footage.line(), markup=False)
     if result.mask is not None and result.mask.usable is not None:

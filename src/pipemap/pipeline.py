@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 
 from pipemap.backend.join import join_sections
+from pipemap.backend.pipe_map import PipeMap
 from pipemap.backend.revisit import RevisitReport, close_network_loops
 from pipemap.backend.network_map import MappedJunction, MappedSection, map_junctions, map_sections, name_junctions, wall_pieces
 from pipemap.backend.sparse_ply import write_sparse_ply
@@ -60,10 +61,8 @@ class FrontEndResult:
 
 @dataclass
 class NetworkResult:
-    straight: StraightResult
-    sections: list[MappedSection]
-    junctions: list[MappedJunction]
-    keyframes: list[Keyframe]
+    straight: StraightResult  # the VO's own figures: its sections, windows, keyframe image indices
+    map: PipeMap  # keyframes, poses and points after the tee model and loop closure, sections, junctions
     seconds: dict
     wall_pieces: list[dict]  # run.json "wall_pieces": the straight pieces of wall the maps sample
     joins: list = field(default_factory=list)  # JoinReport per junction (the tee-model solves)
@@ -71,14 +70,22 @@ class NetworkResult:
     tees: list[MappedJunction] = field(default_factory=list)  # distinct tees in order of first passage
     quality: RunVerdict | None = None  # the sections' self-checks
 
+    @property
+    def sections(self) -> list[MappedSection]:
+        return self.map.sections
+
+    @property
+    def junctions(self) -> list[MappedJunction]:
+        return self.map.junctions
+
 
 @dataclass
 class PipelineResult:
     out_dir: Path
     image_count: int
     keyframe_count: int
-    straight: StraightResult
-    junctions: list[MappedJunction]
+    map: PipeMap
+    junctions: list[MappedJunction]  # the distinct tees, named
     seconds: dict  # per stage
     footage: FootageLog = field(default_factory=FootageLog)
     mask: UsableMask | None = None
@@ -166,49 +173,45 @@ def section_bend(settings: Settings) -> tuple[float, float, float, float] | None
 
 def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> NetworkResult:
     """Stage 2: metric VO of the straight sections (III-C) chained through the junctions, then the
-    sections' cylinders and the tee centres (III-D)."""
+    sections' cylinders and the tee centres (III-D), the tee model and loop closure on the map."""
     vo = StraightVO(dataset.camera, dataset.radius_m, settings)
     junction = keyframe_labels(front.keyframes, front.classes)
     for kf, j in zip(front.keyframes, junction):
         vo.add(kf, junction=bool(j))
     result = vo.finish()
     t = time.perf_counter()
-    sections = map_sections(result.sections, vo.keyframes, result.poses, result.points, result.point_tracks,
-                            dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m,
-                            section_bend(settings))
-    junctions = map_junctions(result.sections, sections, result.poses)
+
+    def fitted_sections(poses: np.ndarray, points: np.ndarray) -> list[MappedSection]:
+        return map_sections(result.sections, vo.keyframes, poses, points, result.point_tracks, dataset.radius_m,
+                            settings.bundle.tee_fit_length_m, settings.bundle.huber_m, section_bend(settings))
+
+    sections = fitted_sections(result.poses, result.points)
+    pipe_map = PipeMap.build(vo.keyframes, result.poses, result.points, result.point_tracks, sections,
+                             map_junctions(result.sections, sections, result.poses))
     joins = []
     if settings.bundle.tee_model:
-        poses, points, joins = join_sections(result, vo.keyframes, sections, junctions, dataset.camera,
-                                             dataset.radius_m, settings)
-        result.poses, result.points = poses, points
-    revisit = RevisitReport("disabled")
-    if settings.loop_closure.enabled and len(junctions) > 1:
+        pipe_map, joins = join_sections(pipe_map, result.active, dataset.camera, dataset.radius_m, settings)
+    revisit = RevisitReport("no revisit" if settings.loop_closure.enabled else "disabled")
+    if settings.loop_closure.enabled and len(pipe_map.junctions) > 1:
         def image_of(k: int) -> np.ndarray:
             return dataset.read(vo.keyframes[k].index).image
 
-        poses, points, revisit = close_network_loops(dataset.camera, vo.keyframes, result.poses, result.points,
-                                                     result.point_tracks, sections, junctions, image_of,
-                                                     dataset.radius_m, settings)
-        if revisit.status == "closed":
-            result.poses, result.points = poses, points
-            # The cylinders hang from the corrected poses: fit them again (the tee centres were moved).
-            sections = map_sections(result.sections, vo.keyframes, result.poses, result.points, result.point_tracks,
-                                    dataset.radius_m, settings.bundle.tee_fit_length_m, settings.bundle.huber_m,
-                            section_bend(settings))
-    elif len(junctions) <= 1:
-        revisit = RevisitReport("no revisit")
+        pipe_map, revisit = close_network_loops(pipe_map, dataset.camera, image_of, dataset.radius_m, settings)
+        if revisit.status == "closed":  # the cylinders hang from the corrected poses: fit them again
+            pipe_map.sections = fitted_sections(pipe_map.poses, pipe_map.points)
+    junctions = pipe_map.junctions
     tees = name_junctions(junctions, dataset.radius_m, settings.loop_closure.same_junction_radii)
+    poses = pipe_map.poses
     # World = the first keyframe's camera frame (x right, y down): 12 o'clock is its -y.
-    up = -result.poses[0, :3, 1] if len(result.poses) else np.array([0.0, -1.0, 0.0])
-    pieces = wall_pieces(sections, junctions, up)
-    route = float(np.sum(np.linalg.norm(np.diff(result.poses[:, :3, 3], axis=0), axis=1))) if len(result.poses) else 0.0
-    quality = network_verdict(result.sections, result.windows, vo.keyframes, result.poses, sections, junctions, joins,
-                              revisit, dataset.radius_m, settings.quality, route)
+    up = -poses[0, :3, 1] if len(poses) else np.array([0.0, -1.0, 0.0])
+    pieces = wall_pieces(pipe_map.sections, junctions, up)
+    route = float(np.sum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))) if len(poses) else 0.0
+    quality = network_verdict(result.sections, result.windows, vo.keyframes, poses, pipe_map.sections, junctions,
+                              joins, revisit, dataset.radius_m, settings.quality, route)
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
     seconds["loop_closure"] = revisit.seconds
-    return NetworkResult(result, sections, junctions, vo.keyframes, seconds, pieces, joins, revisit, tees, quality)
+    return NetworkResult(result, pipe_map, seconds, pieces, joins, revisit, tees, quality)
 
 
 def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
@@ -221,11 +224,11 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
     """trajectory.tum, junctions.yaml, sparse.ply, frames.csv and run.json into `folder`."""
     t0 = time.perf_counter()
     result = net.straight
-    traj = Trajectory.from_matrices(dataset.times()[result.indices], result.poses)
+    traj = Trajectory.from_matrices(dataset.times()[result.indices], net.map.poses)
     write_tum(folder / "trajectory.tum", traj,
               header="pipemap fisheye VO: keyframe T_wc in metres, world = first keyframe's camera")
     write_junctions(folder / "junctions.yaml", net.tees)
-    write_sparse_ply(folder / "sparse.ply", result.points)
+    write_sparse_ply(folder / "sparse.ply", net.map.points)
     classes = front.classes
     labels = dict(zip(np.asarray(classes.indices).tolist(), classes.labels))
     labels.update({i: "repeated" for i in front.footage.repeated})
@@ -243,7 +246,7 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
         stage="run",
         frontend_pixels=scaled_settings(dataset.camera, settings.frontend),
         mask=None if front.mask is None else front.mask.to_dict(),
-        points=len(result.points),
+        points=len(net.map.points),
         lost_keyframes=sum(1 for s in result.sections[1:] if not s.linked),
         sections=[s.to_dict() for s in result.sections],
         straight_sections=[m.to_dict() for m in net.sections],
@@ -283,7 +286,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
         maps = None
         if settings.appearance.enabled and net.wall_pieces:
             stage("appearance")
-            maps = write_maps(tmp, dataset, net.straight.indices, net.straight.poses,
+            maps = write_maps(tmp, dataset, net.straight.indices, net.map.poses,
                               [WallPiece.from_dict(d) for d in net.wall_pieces], settings,
                               usable=None if front.mask is None else front.mask.usable)
         stage("writing")
@@ -293,7 +296,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
             seconds.update(maps["seconds"])
         seconds["total"] = time.perf_counter() - start
         write_results(tmp, dataset, front, net, settings, seconds, maps)
-    return PipelineResult(Path(out_dir), front.image_count, len(net.straight.indices), net.straight, net.tees,
+    return PipelineResult(Path(out_dir), front.image_count, len(net.straight.indices), net.map, net.tees,
                           seconds, front.footage, front.mask, net.quality)
 
 
