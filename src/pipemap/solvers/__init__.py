@@ -5,5 +5,5 @@ complement of the bundle adjustments. Pure maths: nothing here knows of cameras,
 from pipemap.solvers.lm import LMResult, levenberg_marquardt
 from pipemap.solvers.robust import MAD_TO_SIGMA, huber_cost, huber_irls, huber_weights, mad_inliers, mad_sigma
 
-__all__ = ["LMResult", "levenberg_marquardt", "MAD_TO_SIGMA", "huber_cost", "huber_irls", "huber_weights", "mad_inliers",
-           "mad_sigma"]
+__all__ = ["LMResult", "levenberg_marquardt", "MAD_TO_SIGMA", "huber_cost", "huber_irls", "huber_weights",
+           "mad_inliers", "mad_sigma"]
