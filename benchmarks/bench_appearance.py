@@ -79,7 +79,8 @@ def bench_map(frames: int, width: int, height: int, tmp: Path) -> dict:
         "preset": "demo-loop", "size": f"{width}x{height}", "keyframes": amap.keyframes,
         "spacing_m": AppearanceSettings().spacing_m, "map_points": int(len(points)),
         "projections": amap.projections, "samples": amap.samples, "seconds": round(amap.seconds, 3),
-        "points_per_second": round(amap.points_per_second), "seconds_per_keyframe": round(amap.seconds / amap.keyframes, 4),
+        "points_per_second": round(amap.points_per_second),
+        "seconds_per_keyframe": round(amap.seconds / amap.keyframes, 4),
         "texture_correlation": round(texture_correlation(amap, setup.scene, texture), 3),
         "texture_correlation_shifted_3cm": round(texture_correlation(amap_shifted, setup.scene, texture), 3),
     }

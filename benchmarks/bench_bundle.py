@@ -86,18 +86,19 @@ def main() -> None:
         run = {"seed": seed, "points": len(w.points), "observations": len(observations_of(w)), "cylinder_fit_s": fit_s,
                "cylinder_fit_free_radius_m": fit.free_radius, "with_cylinder": a, "tau_zero": b}
         report["runs"].append(run)
-        print(f"{seed:4d} {len(w.points):6d} {len(observations_of(w)):6d} {fit_s:6.3f} {a['solve_s']:7.2f} {a['iterations']:3d} "
-              f"{a['distance_travelled_error_pct']:8.4f} {a['position_rmse_mm']:7.3f} {a['rotation_error_max_deg']:7.3f} "
-              f"{a['outlier_recall']:6.3f} | {b['distance_travelled_error_pct']:12.3f} {b['solve_s']:5.2f}")
+        print(f"{seed:4d} {len(w.points):6d} {len(observations_of(w)):6d} {fit_s:6.3f} {a['solve_s']:7.2f} "
+              f"{a['iterations']:3d} {a['distance_travelled_error_pct']:8.4f} {a['position_rmse_mm']:7.3f} "
+              f"{a['rotation_error_max_deg']:7.3f} {a['outlier_recall']:6.3f} | "
+              f"{b['distance_travelled_error_pct']:12.3f} {b['solve_s']:5.2f}")
     times = [r["with_cylinder"]["solve_s"] for r in report["runs"]]
     report["summary"] = {"solve_s_median": float(np.median(times)), "solve_s_max": float(np.max(times)),
                          "budget_s": 2.0,
-                         "distance_travelled_error_pct_max_abs": max(abs(r["with_cylinder"]["distance_travelled_error_pct"])
-                                                                     for r in report["runs"]),
+                         "distance_travelled_error_pct_max_abs":
+                             max(abs(r["with_cylinder"]["distance_travelled_error_pct"]) for r in report["runs"]),
                          "position_rmse_mm_max": max(r["with_cylinder"]["position_rmse_mm"] for r in report["runs"])}
-    print(f"solve time median {report['summary']['solve_s_median']:.2f} s, max {report['summary']['solve_s_max']:.2f} s "
-          f"(budget 2 s); {report['conditions']['cpus']} CPUs, load {report['conditions']['load_average_at_start'][0]:.1f}; "
-          f"BLAS: {report['conditions']['blas']}")
+    print(f"solve time median {report['summary']['solve_s_median']:.2f} s, "
+          f"max {report['summary']['solve_s_max']:.2f} s (budget 2 s); {report['conditions']['cpus']} CPUs, "
+          f"load {report['conditions']['load_average_at_start'][0]:.1f}; BLAS: {report['conditions']['blas']}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2))
     print(f"wrote {args.out}")

@@ -24,7 +24,8 @@ from pipemap.sim.board import random_board_poses, save_board_views
 
 BOARD, SQUARE = (9, 6), 0.025
 CAMERAS = {
-    "polynomial": lambda: PolynomialCamera(1280, 960, dict(k1=290.0, k2=-2.5, k3=0.8, k4=-0.15, u0=641.2, v0=478.3), 95),
+    "polynomial": lambda: PolynomialCamera(
+        1280, 960, dict(k1=290.0, k2=-2.5, k3=0.8, k4=-0.15, u0=641.2, v0=478.3), 95),
     "kannala_brandt": lambda: KannalaBrandtCamera(
         1280, 960, dict(fx=300.0, fy=302.0, cx=640.4, cy=481.1, k1=0.02, k2=-0.01, k3=0.003, k4=-0.0005), 95),
     "pinhole": lambda: PinholeCamera(

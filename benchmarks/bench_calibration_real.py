@@ -44,7 +44,8 @@ def subpix_corners(gray: np.ndarray, board) -> np.ndarray | None:
     if corners is None:
         return None
     grid = corners.reshape(board[1], board[0], 2)
-    spacing = min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(), np.linalg.norm(np.diff(grid, axis=1), axis=-1).min())
+    spacing = min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(),
+                  np.linalg.norm(np.diff(grid, axis=1), axis=-1).min())
     win = int(np.clip(spacing / 4, 2, 6))
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
     out = cv2.cornerSubPix(gray, corners.astype(np.float32).reshape(-1, 1, 2), (win, win), (-1, -1), criteria)
@@ -87,7 +88,8 @@ def run_set(name, paths, board, square, model, folds, corner_fn) -> dict:
             "per_view_held_out_rms_px": dict(zip(names, cv.held_out_rms)),
             "held_out_corners": dict(zip(names, cv.held_out_corners)),
         },
-        "seconds": {"detect": detect_s, "calibrate": calib_s, "cross_validate": time.perf_counter() - t0 - detect_s - calib_s},
+        "seconds": {"detect": detect_s, "calibrate": calib_s,
+                    "cross_validate": time.perf_counter() - t0 - detect_s - calib_s},
     }
 
 
@@ -125,8 +127,8 @@ def main() -> None:
                 cv = row["cross_validation"]
                 print(f"{name:14s} {model:15s} {corners:12s} {row['views_used']:3d}/{row['images']:<3d} "
                       f"{row['rms_px']:7.3f} {row['worst_view']['image']:>19s} {row['worst_view']['rms_px']:6.3f} "
-                      f"{cv['held_out_rms_px']:12.3f} {cv['worst_view']['image']:>19s} {cv['worst_view']['rms_px']:6.3f} "
-                      f"{len(row['corners_left_out']):8d}", flush=True)
+                      f"{cv['held_out_rms_px']:12.3f} {cv['worst_view']['image']:>19s} "
+                      f"{cv['worst_view']['rms_px']:6.3f} {len(row['corners_left_out']):8d}", flush=True)
     point = [r for r in rows if r.get("corners") == "symmetric" and "rms_px" in r]
     worst = max((r["rms_px"] for r in point), default=float("nan"))
     print(f"worst set RMS {worst:.3f} px: the 0.5 px bar is {'met' if worst <= 0.5 else 'MISSED'}")

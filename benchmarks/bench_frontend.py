@@ -62,7 +62,8 @@ def main(argv=None) -> int:
     parser.add_argument("--presets", nargs="+", default=["fisheye-straight", "paper-loop"])
     parser.add_argument("--sizes", nargs="+", default=["640x480", "1280x960"])
     parser.add_argument("--frames", type=int, default=None,
-                        help="frames per render (default: 120 of fisheye-straight, 260 of paper-loop: through its first tee)")
+                        help="frames per render (default: 120 of fisheye-straight, 260 of paper-loop: "
+                             "through its first tee)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--workdir", type=Path, default=None, help="keep rendered datasets and results here")
@@ -94,7 +95,8 @@ def main(argv=None) -> int:
                 shutil.rmtree(out)
             result = run_tracking(data, out, Settings(seed=args.seed))
             figures = evaluate_tracking(out, data, wall=wall_caster(preset, w, h, frames, args.seed))
-            figures.update({"preset": preset, "size": size, "frames": frames, "tracking_seconds": round(result.seconds, 3),
+            figures.update({"preset": preset, "size": size, "frames": frames,
+                            "tracking_seconds": round(result.seconds, 3),
                             "frames_per_second_in_memory": round(in_memory_rate(data, args.seed), 2),
                             "load_average_after": os.getloadavg()[0]})
             results["runs"].append(figures)

@@ -112,7 +112,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--data", default="/tmp/pipemap-bench")
     ap.add_argument("--out", default="/tmp/pipemap-bench/runs")
-    ap.add_argument("--json-out", default=None, help="where to write the JSON (default benchmarks/results/network-WxH.json)")
+    ap.add_argument("--json-out", default=None,
+                    help="where to write the JSON (default benchmarks/results/network-WxH.json)")
     args = ap.parse_args()
     size = f"{args.width}x{args.height}"
     results: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "size": size}

@@ -3,10 +3,11 @@
     python benchmarks/bench_simulator.py [--frames 150] [--cores 2]
 
 Renders demo-loop (tees and straights), fisheye-straight and paper-loop at 640x480 into a
-temporary folder, pinned to `--cores` CPUs, with `--workers` rendering processes. The rate counts from the first finished frame to
-the last (set-up -- texture baking, bearings -- is reported separately). Memory: peak RSS of
-the process, and the RSS growth between the first and the last tenth of the frames (must stay
-~0: frames stream to disk). Prints a table and writes benchmarks/results/simulator.json.
+temporary folder, pinned to `--cores` CPUs, with `--workers` rendering processes. The rate
+counts from the first finished frame to the last (set-up -- texture baking, bearings -- is
+reported separately). Memory: peak RSS of the process, and the RSS growth between the first
+and the last tenth of the frames (must stay ~0: frames stream to disk). Prints a table and
+writes benchmarks/results/simulator.json.
 """
 
 from __future__ import annotations
@@ -73,7 +74,8 @@ def main() -> None:
     for r in results:
         print(f"{r['preset']:<18}{r['route']:<9}{r['width']}x{r['height']:<6}{r['frames']:>7}{r['frames_per_s']:>10}"
               f"{r['setup_s']:>9}{r['rss_growth_mb']:>15}")
-    print(f"peak RSS {peak:.0f} MB (largest rendering worker {peak_worker:.0f} MB) on {len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else '?'} cores")
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else "?"
+    print(f"peak RSS {peak:.0f} MB (largest rendering worker {peak_worker:.0f} MB) on {cores} cores")
     doc = {"benchmark": "simulator", "cases": results, "peak_rss_mb": round(peak, 1),
            "peak_worker_rss_mb": round(peak_worker, 1),
            "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,

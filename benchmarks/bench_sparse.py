@@ -1,7 +1,8 @@
 """Sparse cylinder-constrained VO (2010 report section 5): a replica of Table 2 on the report's pipes, rendered.
 
     python benchmarks/bench_sparse.py [--data /tmp/pipemap-bench-dense] [--spacing-6in 0] [--spacing-16in 0]
-                                      [--seed 1] [--cases 6in-forward,6in-forward-reverse,16in-forward-reverse,16in-forward]
+                                      [--seed 1]
+                                      [--cases 6in-forward,6in-forward-reverse,16in-forward-reverse,16in-forward]
                                       [--measured-offset] [--set section.key=value ...]
 
 Renders (cached under --data, shared with bench_dense.py) paper-straight-6in forward and

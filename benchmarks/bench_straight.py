@@ -122,7 +122,8 @@ def main() -> None:
     report = {
         "benchmark": "straight-section VO (fisheye paper III-C), no scale alignment",
         "dataset": {"preset": "fisheye-straight", "frames": args.frames, "width": args.width, "height": args.height,
-                    "spacing_m": args.spacing, "seed": args.seed, "lost_keyframes": sum(not k.pose_valid for k in keyframes[1:])},
+                    "spacing_m": args.spacing, "seed": args.seed,
+                    "lost_keyframes": sum(not k.pose_valid for k in keyframes[1:])},
         "frontend_s": round(frontend_s, 2),
         "cases": cases,
         "budget_window": budget_window(),

@@ -187,7 +187,8 @@ def run_colmap(args, ds, frames: int, work: Path) -> dict:
     traj = Trajectory.from_matrices(np.asarray(index, float)[order] / ds.fps, np.asarray(T_wc)[order])
     result = work / "result"
     result.mkdir()
-    write_tum(result / "trajectory.tum", traj, header=f"pycolmap {pycolmap.__version__} incremental SfM (arbitrary scale)")
+    write_tum(result / "trajectory.tum", traj,
+              header=f"pycolmap {pycolmap.__version__} incremental SfM (arbitrary scale)")
     return entry | {"registered_images": len(index), "points": best.num_points3D(),
                     "mean_reprojection_error_px": round(float(best.compute_mean_reprojection_error()), 3),
                     "trajectory": str(result / "trajectory.tum")}
@@ -204,14 +205,16 @@ def run_pipemap(data: Path, out: Path) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"pipemap run failed on {data}: {proc.stderr.strip() or proc.stdout.strip()}")
     run = json.loads((out / "run.json").read_text())
-    return {"wall_s": round(wall, 2), "cpu_s": round(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, 2),
+    return {"wall_s": round(wall, 2),
+            "cpu_s": round(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, 2),
             "seconds": run["seconds"], "keyframes": run["keyframes"], "trajectory": str(out / "trajectory.tum")}
 
 
 def accuracy(trajectory: str, data: Path) -> dict:
     """ATE after Sim(3) and rigid alignment over the side's own poses (pipemap.evaluation, metrics.json)."""
     m = evaluate(Path(trajectory).parent, data)
-    return {"poses": m.associated_poses, "ate_sim3_m": m.ate_sim3.rmse, "ate_sim3_pct_of_path": m.ate_rmse_pct(m.ate_sim3),
+    return {"poses": m.associated_poses, "ate_sim3_m": m.ate_sim3.rmse,
+            "ate_sim3_pct_of_path": m.ate_rmse_pct(m.ate_sim3),
             "ate_rigid_m": m.ate_rigid.rmse, "sim3_scale": m.ate_sim3.scale}
 
 
@@ -259,7 +262,8 @@ def compare() -> None:
         raise PipemapError(f"must be at least 2, got {args.frames}", "--frames")
     frames = len(ds) if args.frames is None else min(args.frames, len(ds))
     if not 0 < args.crop_fov_deg < 180:
-        raise PipemapError(f"must lie in (0, 180) degrees: pycolmap has no model past 90 deg, got {args.crop_fov_deg:g}",
+        raise PipemapError("must lie in (0, 180) degrees: pycolmap has no model past 90 deg, "
+                           f"got {args.crop_fov_deg:g}",
                            "--crop-fov-deg")
     if np.radians(args.crop_fov_deg) / 2 > ds.camera.max_theta:
         raise PipemapError(f"--crop-fov-deg {args.crop_fov_deg:g} exceeds the camera's field of view "

@@ -64,10 +64,11 @@ def peer(width: int, height: int, frames: int) -> Step:
 SUITES = {
     "quick": [
         network(640, 480, ["A"]),
-        Step("dense", "bench_dense.py", ["--data", "{data}/straight", "--cases", "6in-forward", "--methods", "dense-hybrid",
-                                         "--spacing-6in", "0.02", "--out", "{out}"], "{out}"),
-        Step("sparse", "bench_sparse.py", ["--data", "{data}/straight", "--cases", "6in-forward", "--spacing-6in", "0.02",
-                                           "--out", "{out}"], "{out}"),
+        Step("dense", "bench_dense.py", ["--data", "{data}/straight", "--cases", "6in-forward",
+                                         "--methods", "dense-hybrid", "--spacing-6in", "0.02", "--out", "{out}"],
+             "{out}"),
+        Step("sparse", "bench_sparse.py", ["--data", "{data}/straight", "--cases", "6in-forward",
+                                           "--spacing-6in", "0.02", "--out", "{out}"], "{out}"),
         peer(640, 480, 150),
         Step("appearance", "bench_appearance.py", [], "results/appearance.json"),
     ],
@@ -181,7 +182,8 @@ def main() -> None:
     atomic_write_text(out / f"suite-{args.suite}.json", json.dumps(suite, indent=2, default=float) + "\n")
     atomic_write_text(out / f"suite-{args.suite}.md", text)
     print(text)
-    print(f"written {out / f'suite-{args.suite}.json'} and {out / f'suite-{args.suite}.md'} (log: {steps_out / 'log.txt'})")
+    print(f"written {out / f'suite-{args.suite}.json'} and {out / f'suite-{args.suite}.md'} "
+          f"(log: {steps_out / 'log.txt'})")
 
 
 if __name__ == "__main__":

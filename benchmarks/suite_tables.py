@@ -209,8 +209,9 @@ def table_2(results: dict) -> str:
                     continue
                 rep = (e.get("report_abs_error_pct") or {})
                 ref = _report_pct(rep, leg)
-                rows.append([method, e["case"], e["frames"], leg, num(d["ground_truth_mm"], 1), num(d["estimate_mm"], 1),
-                             num(d["abs_error_pct"], 3), f"{num(ref, 3)} ({report_column})" if ref is not None else "–",
+                rows.append([method, e["case"], e["frames"], leg, num(d["ground_truth_mm"], 1),
+                             num(d["estimate_mm"], 1), num(d["abs_error_pct"], 3),
+                             f"{num(ref, 3)} ({report_column})" if ref is not None else "–",
                              num(e.get("frames_per_second"), 1)])
     return table(header, rows)
 
@@ -232,23 +233,28 @@ def peer_table(results: dict) -> str:
             continue
         acc = e.get("accuracy") or {}
         poses = e.get("keyframes") if side == "pipemap" else e.get("registered_images")
-        label = side if side == "pipemap" else f"pycolmap {r.get('pycolmap_version', '')} ({num(r.get('crop_fov_deg'), 0)}° view)"
+        label = (side if side == "pipemap"
+                 else f"pycolmap {r.get('pycolmap_version', '')} ({num(r.get('crop_fov_deg'), 0)}° view)")
         rows.append([label, r["frames"], num(e["wall_s"], 1), num(e.get("cpu_s"), 1),
                      num(r["frames"] / e["wall_s"], 2) if e.get("wall_s") else "–",
                      poses, num(1000 * acc["ate_sim3_m"], 2) if acc.get("ate_sim3_m") is not None else "–",
                      num(acc.get("ate_sim3_pct_of_path"), 3),
-                     num(1000 * common[f"{side}_ate_sim3_m"], 2) if common.get(f"{side}_ate_sim3_m") is not None else "–"])
+                     num(1000 * common[f"{side}_ate_sim3_m"], 2)
+                     if common.get(f"{side}_ate_sim3_m") is not None else "–"])
     ratios = r.get("ratios")
     if ratios:
-        rows.append(["pycolmap / pipemap", "", f"{num(ratios['speedup_wall'])}×", f"{num(ratios.get('speedup_cpu'))}×", "",
+        rows.append(["pycolmap / pipemap", "", f"{num(ratios['speedup_wall'])}×",
+                     f"{num(ratios.get('speedup_cpu'))}×", "",
                      f"{num(ratios['registered_fraction'])} registered",
                      f"{num(ratios['ate_sim3_peer_over_pipemap'])}×", "",
-                     f"{num(ratios.get('ate_sim3_common_peer_over_pipemap'))}× over {common.get('frames', '–')} frames"])
+                     f"{num(ratios.get('ate_sim3_common_peer_over_pipemap'))}× over "
+                     f"{common.get('frames', '–')} frames"])
     return table(header, rows)
 
 
 def status_table(steps: list[dict]) -> str:
-    rows = [[s["name"], s.get("status", "–"), num(s.get("seconds"), 1), f"`{s['command']}`" if s.get("command") else "–"]
+    rows = [[s["name"], s.get("status", "–"), num(s.get("seconds"), 1),
+             f"`{s['command']}`" if s.get("command") else "–"]
             for s in steps]
     return table(["step", "status", "seconds", "command"], rows)
 

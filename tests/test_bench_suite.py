@@ -64,11 +64,13 @@ def results():
     }]}
     peer = {
         "frames": 500, "crop_fov_deg": 120.0, "pycolmap_version": "4.2.1",
-        "pycolmap": {"wall_s": 400.0, "cpu_s": 700.0, "registered_images": 450, "accuracy": {"ate_sim3_m": 0.010, "ate_sim3_pct_of_path": 0.2}},
-        "pipemap": {"wall_s": 40.0, "cpu_s": 50.0, "keyframes": 180, "accuracy": {"ate_sim3_m": 0.002, "ate_sim3_pct_of_path": 0.04}},
+        "pycolmap": {"wall_s": 400.0, "cpu_s": 700.0, "registered_images": 450,
+                     "accuracy": {"ate_sim3_m": 0.010, "ate_sim3_pct_of_path": 0.2}},
+        "pipemap": {"wall_s": 40.0, "cpu_s": 50.0, "keyframes": 180,
+                    "accuracy": {"ate_sim3_m": 0.002, "ate_sim3_pct_of_path": 0.04}},
         "common_frames": {"frames": 170, "pipemap_ate_sim3_m": 0.002, "pycolmap_ate_sim3_m": 0.012},
-        "ratios": {"speedup_wall": 10.0, "speedup_cpu": 14.0, "ate_sim3_peer_over_pipemap": 5.0, "ate_sim3_common_peer_over_pipemap": 6.0,
-                   "registered_fraction": 0.9},
+        "ratios": {"speedup_wall": 10.0, "speedup_cpu": 14.0, "ate_sim3_peer_over_pipemap": 5.0,
+                   "ate_sim3_common_peer_over_pipemap": 6.0, "registered_fraction": 0.9},
     }
     return {"network-1280x960": network, "network-640x480": tables.not_run("left out by --only"), "dense": dense,
             "sparse": tables.not_run("benchmarks/bench_sparse.py not found"), "peer-colmap": peer}
@@ -132,7 +134,8 @@ def test_table_2_legs_and_not_run(results):
 
 def test_peer_table_and_goals(results):
     md = tables.peer_table(results)
-    mine, theirs, ratio = rows_of(md, "pipemap")[0], rows_of(md, "pycolmap 4.2.1")[0], rows_of(md, "pycolmap / pipemap")[0]
+    mine, theirs, ratio = (rows_of(md, "pipemap")[0], rows_of(md, "pycolmap 4.2.1")[0],
+                           rows_of(md, "pycolmap / pipemap")[0])
     assert float(mine[3]) == pytest.approx(50.0) and float(theirs[3]) == pytest.approx(700.0)
     assert float(mine[4]) == pytest.approx(12.5) and float(theirs[4]) == pytest.approx(1.25)
     assert float(mine[6]) == pytest.approx(2.0) and float(theirs[6]) == pytest.approx(10.0)
@@ -146,7 +149,8 @@ def test_peer_table_and_goals(results):
 def test_slow_goal_and_missing_peer(results):
     results["network-1280x960"]["A"]["frames_per_s"] = 7.49
     results["network-1280x960"]["A-half"]["frames_per_s"] = 7.6
-    results["peer-colmap"] = {"frames": 500, "pycolmap": tables.not_run("pycolmap is not installed (pip install pycolmap)")}
+    results["peer-colmap"] = {"frames": 500,
+                              "pycolmap": tables.not_run("pycolmap is not installed (pip install pycolmap)")}
     goals = tables.goals(results)
     assert "NOT met (slowest run 7.49" in goals[0]
     assert goals[1].endswith("not run: pycolmap is not installed (pip install pycolmap)")
@@ -157,7 +161,8 @@ def test_slow_goal_and_missing_peer(results):
 
 
 def test_everything_missing_renders():
-    md = tables.markdown("quick", {}, [{"name": "network-320x240", "status": "not run: benchmarks/bench_network.py not found"}])
+    md = tables.markdown("quick", {}, [{"name": "network-320x240",
+                                        "status": "not run: benchmarks/bench_network.py not found"}])
     assert "| network | not run: no result |" in md
     assert "| pycolmap peer | not run: no result |" in md
     assert "| network-320x240 | not run: benchmarks/bench_network.py not found | – | – |" in md
@@ -176,7 +181,8 @@ def test_run_step_collects_json_and_reports_failures(tmp_path, monkeypatch):
         "import json, pathlib\np = pathlib.Path(__file__).parent / 'results' / 'fixed.json'\n"
         "p.parent.mkdir(exist_ok=True)\np.write_text(json.dumps({'size': '640x480'}))\n")
     with open(tmp_path / "log.txt", "w") as log:
-        ok, rec = run.run_step(run.Step("ok", "bench_ok.py", ["--out", "{out}"], "{out}"), tmp_path, tmp_path / "ok.json", log)
+        ok, rec = run.run_step(run.Step("ok", "bench_ok.py", ["--out", "{out}"], "{out}"), tmp_path,
+                               tmp_path / "ok.json", log)
         assert ok == {"results": [], "value": 3.5} and rec["status"] == "ok"
         assert json.loads((tmp_path / "ok.json").read_text())["value"] == 3.5
         failed, rec = run.run_step(run.Step("fail", "bench_fail.py", [], "{out}"), tmp_path, tmp_path / "f.json", log)
@@ -220,7 +226,8 @@ def test_peer_view_maps_the_central_field_of_view():
     inside = mask > 0
     yy, xx = np.mgrid[0:size, 0:size]
     radius = np.hypot(xx - c, yy - c)
-    assert inside[radius <= 145.0 * np.radians(60.0) - peer.MASK_MARGIN_PX].all() and not inside[radius > 145.0 * np.radians(60.0)].any()
+    assert (inside[radius <= 145.0 * np.radians(60.0) - peer.MASK_MARGIN_PX].all()
+            and not inside[radius > 145.0 * np.radians(60.0)].any())
     assert params == pytest.approx([145.0, 145.0, c + 0.5, c + 0.5, 0, 0, 0, 0])
 
 

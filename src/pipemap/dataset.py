@@ -108,7 +108,8 @@ class Dataset:
             mask = read_grey(self.gain_mask_path)
             if mask.shape != (self.camera.height, self.camera.width):
                 raise PipemapError(
-                    f"gain mask is {mask.shape[1]}x{mask.shape[0]}, the camera is {self.camera.width}x{self.camera.height}",
+                    f"gain mask is {mask.shape[1]}x{mask.shape[0]}, "
+                    f"the camera is {self.camera.width}x{self.camera.height}",
                     self.gain_mask_path,
                 )
             if mask.max() <= 0:
@@ -168,7 +169,8 @@ class Dataset:
     def _check_size(self, raw: RawFrame) -> None:
         h, w = raw.image.shape[:2]
         if (h, w) != (self.camera.height, self.camera.width):
-            raise PipemapError(f"frame {raw.index} is {w}x{h}, dataset.yaml says {self.camera.width}x{self.camera.height}",
+            raise PipemapError(f"frame {raw.index} is {w}x{h}, "
+                               f"dataset.yaml says {self.camera.width}x{self.camera.height}",
                                self.source.where(raw.index))
 
     def _frame(self, raw: RawFrame, gain_correct: bool, repeated: bool = False, dropped: int = 0) -> Frame:

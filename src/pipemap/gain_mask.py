@@ -38,7 +38,8 @@ def build_gain_mask(paths: list[Path], sigma_px: float = 15.0) -> tuple[np.ndarr
 
 def smooth_mask(mean: np.ndarray, sigma_px: float, where=None) -> np.ndarray:
     """Gaussian-smoothed average white-card image: the high-frequency noise removed, the fall-off kept."""
-    mask = cv2.GaussianBlur(mean.astype(np.float32), (0, 0), sigmaX=sigma_px, sigmaY=sigma_px, borderType=cv2.BORDER_REFLECT)
+    mask = cv2.GaussianBlur(mean.astype(np.float32), (0, 0), sigmaX=sigma_px, sigmaY=sigma_px,
+                            borderType=cv2.BORDER_REFLECT)
     if mask.max() <= 0:
         raise PipemapError("the white-card images are black; cannot make a gain mask", where)
     return mask

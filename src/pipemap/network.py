@@ -60,7 +60,8 @@ class PipeNetwork:
             "format": FORMAT,
             "radius_m": float(self.radius_m),
             "segments": [
-                {"id": s.id, "start": [float(v) for v in s.start], "end": [float(v) for v in s.end]} for s in self.segments
+                {"id": s.id, "start": [float(v) for v in s.start], "end": [float(v) for v in s.end]}
+                for s in self.segments
             ],
             "junctions": [
                 {"id": j.id, "type": j.type, "centroid": [float(v) for v in j.centroid]} for j in self.junctions
@@ -99,7 +100,8 @@ def load_network(path: str | Path) -> PipeNetwork:
         key = f"segments[{i}]"
         if not isinstance(s, dict) or "id" not in s:
             raise PipemapError("expected {id, start, end}", path, key)
-        seg = Segment(str(s["id"]), _vec3(s.get("start"), path, key + ".start"), _vec3(s.get("end"), path, key + ".end"))
+        seg = Segment(str(s["id"]), _vec3(s.get("start"), path, key + ".start"),
+                      _vec3(s.get("end"), path, key + ".end"))
         if seg.length <= 0:
             raise PipemapError("segment has zero length", path, key)
         segments.append(seg)
@@ -108,7 +110,8 @@ def load_network(path: str | Path) -> PipeNetwork:
         key = f"junctions[{i}]"
         if not isinstance(j, dict) or "id" not in j:
             raise PipemapError("expected {id, type, centroid}", path, key)
-        junctions.append(Junction(str(j["id"]), str(j.get("type", "tee")), _vec3(j.get("centroid"), path, key + ".centroid")))
+        junctions.append(Junction(str(j["id"]), str(j.get("type", "tee")),
+                                  _vec3(j.get("centroid"), path, key + ".centroid")))
     ids = {j.id for j in junctions}
     visits = tuple(str(v) for v in (data.get("visits") or []))
     for v in visits:

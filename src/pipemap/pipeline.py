@@ -26,7 +26,8 @@ import yaml
 from pipemap.backend.join import join_sections
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.backend.revisit import RevisitReport, close_network_loops
-from pipemap.backend.network_map import MappedJunction, MappedSection, map_junctions, map_sections, name_junctions, wall_pieces
+from pipemap.backend.network_map import (MappedJunction, MappedSection, map_junctions, map_sections, name_junctions,
+                                         wall_pieces)
 from pipemap.backend.sparse_ply import write_sparse_ply
 from pipemap.backend.straight import StraightResult, StraightVO
 from pipemap.config import Settings

@@ -73,7 +73,8 @@ def read_tum(path: str | Path) -> Trajectory:
             continue
         fields = line.replace(",", " ").split()
         if len(fields) != 8:
-            raise PipemapError(f"expected 8 numbers (timestamp tx ty tz qx qy qz qw), found {len(fields)}", path, f"line {lineno}")
+            raise PipemapError(f"expected 8 numbers (timestamp tx ty tz qx qy qz qw), found {len(fields)}", path,
+                               f"line {lineno}")
         try:
             values = [float(f) for f in fields]
         except ValueError:

@@ -116,4 +116,5 @@ def camera_view(dataset: Dataset, settings: Settings | None = None) -> ViewRepor
     return ViewReport(ALONG if bool(inside[0]) else WALL, travel, steps, frames)
 
 
-__all__ = ["ViewReport", "camera_view", "check_wall_in_view", "travel_direction", "ALONG", "WALL", "NETWORK_METHOD", "WALL_METHOD"]
+__all__ = ["ViewReport", "camera_view", "check_wall_in_view", "travel_direction", "ALONG", "WALL", "NETWORK_METHOD",
+           "WALL_METHOD"]

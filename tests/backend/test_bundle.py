@@ -70,7 +70,8 @@ def test_reprojection_and_cylinder_jacobians_match_numerical_ones(bend_knot_m):
         d = np.zeros(q)
         d[i] = eps
         zero = (np.zeros((N, 6)), np.zeros((M, 3)))
-        num_d = (prob.linearise(s.retract(*zero, d), False).dist - prob.linearise(s.retract(*zero, -d), False).dist) / (2 * eps)
+        num_d = (prob.linearise(s.retract(*zero, d), False).dist
+                 - prob.linearise(s.retract(*zero, -d), False).dist) / (2 * eps)
         assert np.abs(num_d - lin.Jd_cyl[:, i]).max() < 1e-7
     assert len(np.unique(cam)) == N and len(np.unique(pt)) == M
 
@@ -190,7 +191,8 @@ def test_tau_zero_gauges_hold_the_scale_they_are_given(window):
     assert abs(np.linalg.norm(res.poses[-1, :3, 3] - res.poses[0, :3, 3]) - d0) < 1e-5  # m
     res = BundleProblem(window.camera, (window.R0, window.t0), window.points0, observations_of(window),
                         fixed_poses=(0, 5), **kw).solve()
-    assert np.allclose(res.poses[5, :3, 3], window.t0[5], atol=0) and np.allclose(res.poses[5, :3, :3], window.R0[5], atol=0)
+    assert (np.allclose(res.poses[5, :3, 3], window.t0[5], atol=0)
+            and np.allclose(res.poses[5, :3, :3], window.R0[5], atol=0))
 
 
 def test_solving_is_deterministic(window):
@@ -205,8 +207,8 @@ def test_settings_supply_the_papers_values(window):
     from pipemap.config import Settings
 
     s = Settings()
-    prob = BundleProblem.from_settings(window.camera, (window.R0, window.t0), window.points0, observations_of(window), s,
-                                       cylinder=window.cylinder, max_iterations=3)
+    prob = BundleProblem.from_settings(window.camera, (window.R0, window.t0), window.points0, observations_of(window),
+                                       s, cylinder=window.cylinder, max_iterations=3)
     assert prob.tau == 2.5e5 and prob.huber_px == s.bundle.huber_px and prob.mad_k == s.bundle.mad_k
     assert prob.max_iterations == 3
     res = prob.solve()
@@ -214,7 +216,8 @@ def test_settings_supply_the_papers_values(window):
 
 
 def test_bad_observation_indices_are_refused(window):
-    obs = Observations(observations_of(window).camera, observations_of(window).point.copy(), observations_of(window).pixels)
+    obs = Observations(observations_of(window).camera, observations_of(window).point.copy(),
+                       observations_of(window).pixels)
     obs.point[0] = len(window.points0)
     with pytest.raises(ValueError, match="out of range"):
         BundleProblem(window.camera, (window.R0, window.t0), window.points0, obs)

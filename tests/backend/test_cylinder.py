@@ -7,7 +7,8 @@ import pytest
 
 from pipemap.camera import PolynomialCamera
 from pipemap.errors import PipemapError
-from pipemap.geometry.cylinder import Cylinder, distance_jacobians, fit_cylinder, local_distance, local_frame, rot_x, rot_y
+from pipemap.geometry.cylinder import (Cylinder, distance_jacobians, fit_cylinder, local_distance, local_frame, rot_x,
+                                       rot_y)
 from pipemap.geometry.rotations import exp_so3, look_rotation
 from pipemap.geometry.se3 import retract
 
@@ -108,7 +109,8 @@ def wall_points(rng, cyl_true, n=2000, length=1.0, noise=0.001, outliers=0.1):
     r = RADIUS + rng.normal(0, noise, n)
     bad = rng.random(n) < outliers
     r[bad] = rng.uniform(0.02, RADIUS - 0.02, bad.sum())  # debris inside the pipe
-    X = cyl_true.origin + z[:, None] * cyl_true.direction + r[:, None] * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v)
+    X = (cyl_true.origin + z[:, None] * cyl_true.direction
+         + r[:, None] * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v))
     return X, bad
 
 
@@ -144,7 +146,6 @@ def test_fit_recovers_a_known_cylinder_from_noisy_points(init):
 
 def test_fit_covariance_matches_the_scatter_of_repeated_fits():
     """rms^2 (J^T J)^-1 against the spread of the parameters over 40 noise draws (1 mm, no outliers)."""
-    true = Cylinder([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], RADIUS)
     reference = (np.eye(3), np.zeros(3))
     params, sds = [], []
     for seed in range(40):

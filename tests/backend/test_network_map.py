@@ -36,11 +36,14 @@ def _l_shaped_run(rng, sag_m=0.0, joint=0.9):
     around each leg; every keyframe sees the points within 0.6 m of it."""
     centres, dirs = [], []
     for s in np.arange(0.0, 1.8, 0.02):
-        centres.append([s, 0, 0]); dirs.append([1, 0, 0])
+        centres.append([s, 0, 0])
+        dirs.append([1, 0, 0])
     for a in np.linspace(0, np.pi / 2, 12)[1:-1]:
-        centres.append([1.8 + 0.2 * np.sin(a), 0.2 - 0.2 * np.cos(a), 0]); dirs.append([np.cos(a), np.sin(a), 0])
+        centres.append([1.8 + 0.2 * np.sin(a), 0.2 - 0.2 * np.cos(a), 0])
+        dirs.append([np.cos(a), np.sin(a), 0])
     for s in np.arange(0.2, 2.0, 0.02):
-        centres.append([2.0, s, 0]); dirs.append([0, 1, 0])
+        centres.append([2.0, s, 0])
+        dirs.append([0, 1, 0])
     centres, dirs = np.array(centres), np.array(dirs)
     poses = np.tile(np.eye(4), (len(centres), 1, 1))
     for k, (c, d) in enumerate(zip(centres, dirs)):

@@ -172,7 +172,8 @@ def _slipping_run(ds, keyframes, overrides):
     """The VO with its chained scale made to slip: every step after the first window 4 % short."""
     from pipemap.backend.straight import StraightVO
 
-    vo = StraightVO(ds.camera, ds.radius_m, load_settings(overrides=["straight_vo.resection_min_points=null"] + overrides))
+    vo = StraightVO(ds.camera, ds.radius_m,
+                    load_settings(overrides=["straight_vo.resection_min_points=null"] + overrides))
     # the check runs only for cameras that do not see the wall beside them; the fisheye's data with a
     # made-up slip tests the mechanism
     vo._drift_check = vo.s.scale_drift is not None

@@ -23,9 +23,11 @@ def test_calibrate_command_recovers_the_camera(board_folder):
     root, truth = board_folder
     out = root / "est.yaml"
     result = CliRunner().invoke(app, ["calibrate", str(root / "images/*.png"), "--board", "9x6", "--square", "0.025",
-                                      "--model", "polynomial", "--out", str(out), "--max-theta-deg", "95", "--folds", "3"])
+                                      "--model", "polynomial", "--out", str(out), "--max-theta-deg", "95",
+                                      "--folds", "3"])
     assert result.exit_code == 0, result.output
-    assert "zz_corrupt.png" in result.output and "RMS" in result.output and "held out in 3 folds" in " ".join(result.output.split())
+    assert ("zz_corrupt.png" in result.output and "RMS" in result.output
+            and "held out in 3 folds" in " ".join(result.output.split()))
     cv = yaml.safe_load(out.read_text())["calibration"]["cross_validation"]
     assert cv["folds"] == 3 and cv["held_out_rms_px"] < 0.3
     est = load_camera(out)
@@ -35,9 +37,10 @@ def test_calibrate_command_recovers_the_camera(board_folder):
     assert again.exit_code == 2 and "already exists" in again.output
 
 
-@pytest.mark.parametrize("args, words", [(["--model", "fancy"], "unknown camera model"), (["--board", "nine"], "--board"),
-                                         (["--folds", "1"], "--folds")])
+@pytest.mark.parametrize("args, words", [(["--model", "fancy"], "unknown camera model"),
+                                         (["--board", "nine"], "--board"), (["--folds", "1"], "--folds")])
 def test_calibrate_bad_arguments(board_folder, tmp_path, args, words):
     root, _ = board_folder
-    result = CliRunner().invoke(app, ["calibrate", str(root / "images/*.png"), "--out", str(tmp_path / "c.yaml"), *args])
+    result = CliRunner().invoke(app, ["calibrate", str(root / "images/*.png"), "--out", str(tmp_path / "c.yaml"),
+                                      *args])
     assert result.exit_code == 2 and words in result.output

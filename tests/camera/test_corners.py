@@ -43,7 +43,8 @@ def true_corners(cam, view):
 def aligned(corners, truth):
     """The detector may start the grid at any corner: take the order that matches the truth."""
     g = corners.reshape(BOARD[1], BOARD[0], 2)
-    return min((o.reshape(-1, 2) for o in (g, g[::-1, ::-1], g[::-1], g[:, ::-1])), key=lambda o: np.abs(o - truth).max())
+    return min((o.reshape(-1, 2) for o in (g, g[::-1, ::-1], g[::-1], g[:, ::-1])),
+               key=lambda o: np.abs(o - truth).max())
 
 
 @pytest.fixture(scope="module")

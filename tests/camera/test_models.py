@@ -13,11 +13,13 @@ def fisheye_190():
 
 
 def kb():
-    return KannalaBrandtCamera(1280, 960, dict(fx=300.0, fy=302.0, cx=640.4, cy=481.1, k1=0.02, k2=-0.01, k3=0.003, k4=-0.0005), 95)
+    return KannalaBrandtCamera(
+        1280, 960, dict(fx=300.0, fy=302.0, cx=640.4, cy=481.1, k1=0.02, k2=-0.01, k3=0.003, k4=-0.0005), 95)
 
 
 def pinhole():
-    return PinholeCamera(1024, 768, dict(fx=730.0, fy=731.5, cx=512.3, cy=383.2, k1=-0.28, k2=0.09, p1=0.001, p2=-0.0007, k3=-0.01))
+    return PinholeCamera(
+        1024, 768, dict(fx=730.0, fy=731.5, cx=512.3, cy=383.2, k1=-0.28, k2=0.09, p1=0.001, p2=-0.0007, k3=-0.01))
 
 
 CAMERAS = [fisheye_190, kb, pinhole]
@@ -90,7 +92,8 @@ def test_jacobians_match_numerical(make):
     for i in range(len(cam.param_names)):
         d = np.zeros(len(cam.param_names))
         d[i] = eps
-        num = (cam.with_params(cam.params + d).project(X)[0] - cam.with_params(cam.params - d).project(X)[0]) / (2 * eps)
+        num = (cam.with_params(cam.params + d).project(X)[0]
+               - cam.with_params(cam.params - d).project(X)[0]) / (2 * eps)
         np.testing.assert_allclose(Jk[..., i], num, rtol=1e-5, atol=1e-4)
 
 
@@ -105,7 +108,8 @@ def test_kannala_brandt_agrees_with_opencv_fisheye():
     rng = np.random.default_rng(3)
     theta = rng.uniform(0, np.radians(89), 500)
     phi = rng.uniform(-np.pi, np.pi, 500)
-    X = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1) * rng.uniform(0.5, 3, (500, 1))
+    X = (np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+         * rng.uniform(0.5, 3, (500, 1)))
     fx, fy, cx, cy, k1, k2, k3, k4 = cam.params
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
     ref, _ = cv2.fisheye.projectPoints(X.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, np.array([k1, k2, k3, k4]))
@@ -116,7 +120,8 @@ def test_kannala_brandt_agrees_with_opencv_fisheye():
 def test_pinhole_agrees_with_opencv():
     cam = pinhole()
     rng = np.random.default_rng(4)
-    X = np.column_stack([rng.uniform(-0.6, 0.6, 500), rng.uniform(-0.45, 0.45, 500), np.ones(500)]) * rng.uniform(0.5, 3, (500, 1))
+    X = (np.column_stack([rng.uniform(-0.6, 0.6, 500), rng.uniform(-0.45, 0.45, 500), np.ones(500)])
+         * rng.uniform(0.5, 3, (500, 1)))
     fx, fy, cx, cy, k1, k2, p1, p2, k3 = cam.params
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
     ref, _ = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, np.array([k1, k2, p1, p2, k3]))
@@ -139,13 +144,18 @@ def test_dict_round_trip():
 @pytest.mark.parametrize(
     "block, words",
     [
-        ({"model": "polynomial", "width": 640, "height": 480, "params": dict(k1=-100, k2=0, k3=0, k4=0, u0=320, v0=240)}, "k1"),
-        ({"model": "kannala_brandt", "width": 640, "height": 480, "params": dict(fx=0, fy=300, cx=320, cy=240, k1=0, k2=0, k3=0, k4=0)}, "fx"),
-        ({"model": "polynomial", "width": 640, "height": 480, "params": dict(k1=150, k2=-60, k3=0, k4=0, u0=320, v0=240), "max_theta_deg": 95}, "monotone"),
-        ({"model": "pinhole", "width": 640, "height": 480, "params": dict(fx=300, fy=300, cx=320, cy=240, k1=-2.0, k2=0, p1=0, p2=0, k3=0)}, "monotone"),
+        ({"model": "polynomial", "width": 640, "height": 480,
+          "params": dict(k1=-100, k2=0, k3=0, k4=0, u0=320, v0=240)}, "k1"),
+        ({"model": "kannala_brandt", "width": 640, "height": 480,
+          "params": dict(fx=0, fy=300, cx=320, cy=240, k1=0, k2=0, k3=0, k4=0)}, "fx"),
+        ({"model": "polynomial", "width": 640, "height": 480,
+          "params": dict(k1=150, k2=-60, k3=0, k4=0, u0=320, v0=240), "max_theta_deg": 95}, "monotone"),
+        ({"model": "pinhole", "width": 640, "height": 480,
+          "params": dict(fx=300, fy=300, cx=320, cy=240, k1=-2.0, k2=0, p1=0, p2=0, k3=0)}, "monotone"),
         ({"model": "orthographic", "width": 640, "height": 480, "params": {}}, "unknown camera model"),
         ({"model": "pinhole", "width": 640, "height": 480, "params": dict(fx=300, fy=300, cx=320, cy=240)}, "missing"),
-        ({"model": "pinhole", "width": 0, "height": 480, "params": dict(fx=300, fy=300, cx=320, cy=240, k1=0, k2=0, p1=0, p2=0, k3=0)}, "positive"),
+        ({"model": "pinhole", "width": 0, "height": 480,
+          "params": dict(fx=300, fy=300, cx=320, cy=240, k1=0, k2=0, p1=0, p2=0, k3=0)}, "positive"),
     ],
 )
 def test_bad_parameters_raise_one_clear_error(block, words):

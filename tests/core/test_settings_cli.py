@@ -33,7 +33,8 @@ def test_yaml_then_overrides(tmp_path):
     assert Settings.model_validate(s.to_dict()) == s
 
 
-@pytest.mark.parametrize("override, words", [("bundle.nope=1", "bundle.nope"), ("bundle.tau=-1", "bundle.tau"), ("tau", "section.key=value")])
+@pytest.mark.parametrize("override, words", [("bundle.nope=1", "bundle.nope"), ("bundle.tau=-1", "bundle.tau"),
+                                             ("tau", "section.key=value")])
 def test_bad_overrides(override, words):
     with pytest.raises(PipemapError, match=words):
         load_settings(None, [override])
@@ -49,7 +50,8 @@ def test_cli_help_for_every_command():
 
 
 def test_cli_error_is_one_line_and_nonzero(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "pipemap", "info", str(tmp_path / "nope")], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "pipemap", "info", str(tmp_path / "nope")], capture_output=True,
+                          text=True)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "nope" in proc.stderr and "Traceback" not in proc.stderr
 
@@ -64,7 +66,8 @@ def test_gain_mask_command(tmp_path):
     vignette = 200 * np.exp(-((xx - 32) ** 2 + (yy - 24) ** 2) / 2000.0)
     rng = np.random.default_rng(0)
     for i in range(4):
-        cv2.imwrite(str(tmp_path / f"card{i}.png"), np.clip(vignette + rng.normal(0, 3, vignette.shape), 0, 255).astype(np.uint8))
+        cv2.imwrite(str(tmp_path / f"card{i}.png"),
+                    np.clip(vignette + rng.normal(0, 3, vignette.shape), 0, 255).astype(np.uint8))
     out = tmp_path / "mask.png"
     r = runner.invoke(app, ["gain-mask", str(tmp_path / "card*.png"), "--out", str(out), "--sigma", "2"])
     assert r.exit_code == 0, r.output

@@ -47,7 +47,8 @@ def _result(root, est, junctions=None):
     root.mkdir(parents=True)
     write_tum(root / "trajectory.tum", est)
     if junctions is not None:
-        items = [{"id": j, "type": "tee", "centroid": [float(v) for v in c], "keyframe": i} for i, (j, c) in enumerate(junctions)]
+        items = [{"id": j, "type": "tee", "centroid": [float(v) for v in c], "keyframe": i}
+                 for i, (j, c) in enumerate(junctions)]
         (root / "junctions.yaml").write_text(yaml.safe_dump({"format": "pipemap-junctions/1", "junctions": items}))
     return root
 
@@ -80,8 +81,8 @@ def test_ground_truth_as_estimate_has_zero_error_and_writes_metrics(tmp_path):
     assert len(res.junctions.pairs) == 6
     assert all(abs(p.error) < 1e-9 and abs(p.error_pct) < 1e-7 for p in res.junctions.pairs)
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    assert list(metrics) == ["format", "dataset", "poses", "ate", "path_length", "distance_travelled", "junctions", "sections",
-                            "appearance_wall", "notes"]
+    assert list(metrics) == ["format", "dataset", "poses", "ate", "path_length", "distance_travelled", "junctions",
+                             "sections", "appearance_wall", "notes"]
     assert metrics["format"] == "pipemap-metrics/1" and metrics["dataset"] == "synthetic"
     assert metrics["poses"]["associated"] == len(gt)
     assert set(metrics["ate"]) == {"rigid", "sim3"}
@@ -108,7 +109,8 @@ def test_copy_scaled_by_1_01_has_one_percent_errors(tmp_path):
 def test_rigidly_moved_copy_has_zero_rigid_ate(tmp_path):
     data, gt = _loop(tmp_path)
     R, t = exp_so3(np.array([0.3, -1.2, 2.0])), np.array([10.0, -4.0, 2.5])
-    res = evaluate(_result(tmp_path / "out", _transformed(gt, R, t), _true_junctions(("T1", "T2", "T3", "T4"), R, t)), data)
+    res = evaluate(_result(tmp_path / "out", _transformed(gt, R, t),
+                           _true_junctions(("T1", "T2", "T3", "T4"), R, t)), data)
     assert res.ate_rigid.rmse < 1e-8
     np.testing.assert_allclose(res.ate_rigid.alignment.rotation, R.T, atol=1e-8)
     assert all(abs(p.error) < 1e-8 for p in res.junctions.pairs)
@@ -131,7 +133,8 @@ def test_associate_is_nearest_within_tolerance_and_one_to_one():
     gt_t = np.arange(10) / FPS
     est_t = np.array([gt_t[5] + 5e-5, gt_t[2], gt_t[7] + 5e-3, gt_t[2] - 2e-5, gt_t[9]])
     e, g = associate(est_t, gt_t)
-    assert e.tolist() == [3, 0, 4] and g.tolist() == [2, 5, 9]  # in time order; the later duplicate of 2 and 7+5ms dropped
+    # in time order; the later duplicate of 2 and 7+5ms dropped
+    assert e.tolist() == [3, 0, 4] and g.tolist() == [2, 5, 9]
     assert associate(np.zeros(0), gt_t)[0].size == 0
 
 
@@ -152,7 +155,8 @@ def test_missing_junction_is_reported_not_hidden():
     table = junction_table(["A", "B", "C"], np.stack([CORNERS["T1"], CORNERS["T2"], CORNERS["T3"]]),
                            ["T1", "T2", "T3", "T4", "T1"], truth)
     assert not table.counts_agree and table.estimated_count == 3 and table.truth_count == 4
-    assert {frozenset(p.truth_ids) for p in table.pairs} == {frozenset(p) for p in [("T1", "T2"), ("T2", "T3"), ("T1", "T3")]}
+    assert ({frozenset(p.truth_ids) for p in table.pairs}
+            == {frozenset(p) for p in [("T1", "T2"), ("T2", "T3"), ("T1", "T3")]})
     assert route_pairs(["T1", "T2", "T3"]) == [("T1", "T2"), ("T2", "T3"), ("T1", "T3")]
 
 
@@ -242,9 +246,11 @@ def _bad(tmp_path, what):
         (("junctions", "format: pipemap-junctions/1\njunctions: [{id: A, centroid: [1, 2]}]\n"),
          r"junctions\.yaml: junctions\[0\]\.centroid: expected a list of 3"),
         (("junctions", "format: pipemap-junctions/2\njunctions: []\n"), r"junctions\.yaml: format: expected"),
-        (("junctions", "format: pipemap-junctions/1\njunctions: {id: A}\n"), r"junctions\.yaml: junctions: expected a list"),
+        (("junctions", "format: pipemap-junctions/1\njunctions: {id: A}\n"),
+         r"junctions\.yaml: junctions: expected a list"),
         (("junctions", "format: [unclosed\n"), r"junctions\.yaml: cannot parse YAML"),
-        (("junctions", "format: pipemap-junctions/1\njunctions: [{id: A, centroid: [0, 0, 0]}, {id: A, centroid: [1, 0, 0]}]\n"),
+        (("junctions", "format: pipemap-junctions/1\n"
+                       "junctions: [{id: A, centroid: [0, 0, 0]}, {id: A, centroid: [1, 0, 0]}]\n"),
          r"junctions\.yaml: junctions\[1\]\.id: junction id 'A' appears twice"),
         (("poses", None), r"poses\.tum: no ground-truth poses"),
         (("network", "format: pipemap-network/1\nradius_m: 0\n"), r"network\.yaml: radius_m: must be positive"),

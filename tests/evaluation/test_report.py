@@ -91,7 +91,8 @@ def test_full_report(loop_dataset, tmp_path):
         assert f"{pair.error:+.3f}" in html
         assert abs(pair.error) < 0.021  # the centres moved by 1 cm each
     assert "a problem worth showing" in html
-    assert "map suspect: 1 section good, 1 section suspect" in html and "<td>wall residual 3.0 % (limit 2.0 %)</td>" in html
+    assert ("map suspect: 1 section good, 1 section suspect" in html
+            and "<td>wall residual 3.0 % (limit 2.0 %)</td>" in html)
     assert "tracking lost: not bridged" in html
     assert "50 points" in html  # appearance.ply's vertex count
     thumb = cv2.imread(str(result / "report" / "thumb-S1.png"), cv2.IMREAD_UNCHANGED)

@@ -20,8 +20,10 @@ def test_worst_leg_keeps_forward_and_reverse_from_cancelling():
 
 
 def test_confusion_counts_by_error_class():
-    rows = [{"error_pct": 0.05, "truth_m": 2.0, "rating": "good"}, {"error_pct": -0.5, "truth_m": 2.0, "rating": "good"},
-            {"error_pct": 1.7, "truth_m": 3.0, "rating": "suspect"}, {"error_pct": None, "truth_m": None, "rating": "good"}]
+    rows = [{"error_pct": 0.05, "truth_m": 2.0, "rating": "good"},
+            {"error_pct": -0.5, "truth_m": 2.0, "rating": "good"},
+            {"error_pct": 1.7, "truth_m": 3.0, "rating": "suspect"},
+            {"error_pct": None, "truth_m": None, "rating": "good"}]
     t = confusion(rows)
     assert t["within 0.1 %"]["good"] == 1 and t["0.1-1 %"]["good"] == 1 and t["over 1 %"]["suspect"] == 1
     assert error_class(-1.01) == "over 1 %"

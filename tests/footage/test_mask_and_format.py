@@ -5,7 +5,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import yaml
 
 from footage_helpers import texture_frames, write_dataset
 from pipemap.dataset import FootageLog, load_dataset

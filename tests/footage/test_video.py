@@ -110,7 +110,8 @@ def test_a_damaged_frame_is_skipped_with_those_predicted_from_it_and_reading_goe
     path = write_video(tmp_path / "run.avi", frames40, "mpeg4", options={"g": "12"})  # keyframes 0, 12, 24, 36
     pos, size, pts, key = packets(path)[20]
     data = bytearray(path.read_bytes())
-    data[pos + size // 4: pos + size // 4 + 40] = np.random.default_rng(3).integers(0, 256, 40, dtype=np.uint8).tobytes()
+    garbage = np.random.default_rng(3).integers(0, 256, 40, dtype=np.uint8).tobytes()
+    data[pos + size // 4: pos + size // 4 + 40] = garbage
     path.write_bytes(bytes(data))
     ds = load_dataset(write_dataset(tmp_path, "run.avi"))
     log = FootageLog()

@@ -72,7 +72,8 @@ def straight_pipe_scene(width=320, height=240, frames=40, step_m=0.02, seed=0, n
     texture = wall_texture(frames * step_m + 4.0, radius, res, seed)
     idx = np.arange(frames)
     centres = np.stack([0.03 * np.sin(idx / 7.0), 0.02 * np.cos(idx / 5.0), 0.5 + step_m * idx], axis=-1)
-    rotations = np.stack([exp_so3(np.array([0.05 * np.sin(i / 6.0), 0.04 * np.cos(i / 9.0), 0.1 * i / frames])) for i in idx])
+    rotations = np.stack([exp_so3(np.array([0.05 * np.sin(i / 6.0), 0.04 * np.cos(i / 9.0), 0.1 * i / frames]))
+                          for i in idx])
     images = [render_pipe(camera, radius, texture, res, R, c, noise, rng) for R, c in zip(rotations, centres)]
     return PipeScene(camera, radius, rotations, centres, images)
 

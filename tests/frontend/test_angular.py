@@ -10,7 +10,8 @@ from pipemap.sim.presets import cctv_camera, fisheye_camera
 
 
 def test_reference_is_the_fisheye_at_640():
-    assert pixels_per_degree(fisheye_camera(640, 480)) == pytest.approx(FrontendSettings().reference_px_per_deg, rel=1e-3)
+    reference = FrontendSettings().reference_px_per_deg
+    assert pixels_per_degree(fisheye_camera(640, 480)) == pytest.approx(reference, rel=1e-3)
     assert pixel_scale(fisheye_camera(1280, 960), 2.53) == pytest.approx(2.0, rel=1e-3)
     # the 100 deg CCTV lens puts 2.5 times as many pixels on a degree at the same image size
     assert pixel_scale(cctv_camera(640, 480), 2.53) == pytest.approx(2.48, abs=0.01)

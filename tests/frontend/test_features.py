@@ -23,7 +23,8 @@ def test_corners_lie_in_the_fisheye_circle_capped_per_region(pipe_scene):
 def test_corner_positions_follow_a_sub_pixel_shift(pipe_scene):
     image = cv2.GaussianBlur(pipe_scene.images[0], (0, 0), 0.7)
     shift = np.array([0.3, 0.6])
-    moved = cv2.warpAffine(image, np.array([[1, 0, shift[0]], [0, 1, shift[1]]]), image.shape[::-1], flags=cv2.INTER_CUBIC)
+    moved = cv2.warpAffine(image, np.array([[1, 0, shift[0]], [0, 1, shift[1]]]), image.shape[::-1],
+                           flags=cv2.INTER_CUBIC)
     mask = valid_mask(pipe_scene.camera, 20)
     a, _ = detect_corners(image, mask, (2, 2), 100)
     b, _ = detect_corners(moved, mask, (2, 2), 100)

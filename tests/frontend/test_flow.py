@@ -21,7 +21,8 @@ def _derivatives(f, x, h=1e-3):
     H = np.empty(x.shape[:-1] + (2, 2, 2))
     for a in range(2):
         for b in range(2):
-            H[..., :, a, b] = (f(x + e[a] + e[b]) - f(x + e[a] - e[b]) - f(x - e[a] + e[b]) + f(x - e[a] - e[b])) / (4 * h * h)
+            H[..., :, a, b] = (f(x + e[a] + e[b]) - f(x + e[a] - e[b])
+                               - f(x - e[a] + e[b]) + f(x - e[a] - e[b])) / (4 * h * h)
     return J, H
 
 

@@ -8,7 +8,8 @@ import pytest
 
 from pipemap.config import AppearanceSettings
 from pipemap.errors import PipemapError
-from pipemap.mapping import WallPiece, build_appearance, read_appearance_ply, sample_wall, wall_grid, write_appearance_ply
+from pipemap.mapping import (WallPiece, build_appearance, read_appearance_ply, sample_wall, wall_grid,
+                             write_appearance_ply)
 from pipemap.mapping.wall import in_line_of_sight, inside_piece
 
 from mapping_helpers import texture_correlation
@@ -60,7 +61,8 @@ def test_tee_opening_is_cut_from_the_main_wall_only_on_the_branch_side():
     np.testing.assert_array_equal(~keep, hole)
     # the hole's area on the main wall: int over z of 2 sqrt(r^2 - z^2) dz... ~ pi r^2 / ... measured
     area = (~keep).sum() * spacing * (2 * np.pi * R / P.shape[1])
-    # area of the branch opening on the main cylinder: int_{-r}^{r} 2 sqrt(r^2 - x^2) * (dz/ds) ds = 4 r^2 (exact: 4 r^2)
+    # area of the branch opening on the main cylinder: int_{-r}^{r} 2 sqrt(r^2 - x^2) * (dz/ds) ds = 4 r^2
+    # (exact: 4 r^2)
     assert area == pytest.approx(4 * (R - margin) ** 2, rel=0.05)
     Pb, keep_b = sample_wall(branch, spacing, [main, branch])
     inside_main = Pb[..., 1] ** 2 + Pb[..., 2] ** 2 < (R - spacing) ** 2

@@ -43,7 +43,8 @@ def test_irradiance_follows_the_inverse_square_law():
     assert e[2] / e[1] == pytest.approx(0.25, rel=5e-4)
 
 
-@pytest.mark.parametrize("leds", [LedRing(), LedRing(4, 0.03, 15.0, 40.0, 3.0, phase_deg=45.0), LedRing(6, 0.05, -10.0, 75.0)])
+@pytest.mark.parametrize("leds", [LedRing(), LedRing(4, 0.03, 15.0, 40.0, 3.0, phase_deg=45.0),
+                                  LedRing(6, 0.05, -10.0, 75.0)])
 def test_irradiance_matches_the_analytic_sum_over_leds(leds):
     rng = np.random.default_rng(3)
     phi = rng.uniform(0, 2 * np.pi, 300)
@@ -102,7 +103,8 @@ def test_shade_combines_albedo_irradiance_specular_and_ambient():
     leds = LedRing()
     rng = np.random.default_rng(0)
     phi = rng.uniform(0, 2 * np.pi, (20, 30))
-    points = np.stack([0.2 * np.cos(phi), 0.2 * np.sin(phi), rng.uniform(0.05, 1.0, phi.shape)], axis=-1).astype(np.float32)
+    points = np.stack([0.2 * np.cos(phi), 0.2 * np.sin(phi), rng.uniform(0.05, 1.0, phi.shape)],
+                      axis=-1).astype(np.float32)
     normals = np.stack([-np.cos(phi), -np.sin(phi), np.zeros_like(phi)], axis=-1).astype(np.float32)
     albedo = rng.uniform(0.1, 0.9, phi.shape).astype(np.float32)
     rad = shade(albedo, points, normals, leds, specular_strength=0.2, ambient=0.5)
@@ -178,16 +180,19 @@ def test_auto_exposure_puts_the_median_at_the_target(gamma):
     sensor = Sensor(exposure=1.0, read_noise=0.0, gamma=gamma)
     exposure = auto_exposure(radiance, theta, sensor, target=0.45)
     # the same exposure relative to a 1e9 electron well: shot noise becomes negligible
-    img = Sensor(exposure * 1e9 / sensor.full_well, read_noise=0.0, gamma=gamma, full_well=1e9).expose(radiance, theta, rng)
+    deep_well = Sensor(exposure * 1e9 / sensor.full_well, read_noise=0.0, gamma=gamma, full_well=1e9)
+    img = deep_well.expose(radiance, theta, rng)
     assert np.median(img[10:]) == pytest.approx(0.45 * 255, abs=1.5)
     with pytest.raises(PipemapError, match="no lit pixels"):
         auto_exposure(np.zeros((4, 4)), np.zeros((4, 4)), sensor)
 
 
 def test_bad_settings_fail_with_one_clear_error():
-    for kwargs, word in [(dict(n_leds=0), "LED"), (dict(beam_half_angle_deg=95), "half angle"), (dict(power=-1), "power")]:
+    for kwargs, word in [(dict(n_leds=0), "LED"), (dict(beam_half_angle_deg=95), "half angle"),
+                         (dict(power=-1), "power")]:
         with pytest.raises(PipemapError, match=word):
             LedRing(**kwargs)
-    for kwargs, word in [(dict(exposure=-1), "exposure"), (dict(exposure=1, vignetting=1.5), "vignetting"), (dict(exposure=1, bit_depth=20), "bit depth")]:
+    for kwargs, word in [(dict(exposure=-1), "exposure"), (dict(exposure=1, vignetting=1.5), "vignetting"),
+                         (dict(exposure=1, bit_depth=20), "bit depth")]:
         with pytest.raises(PipemapError, match=word):
             Sensor(**kwargs)

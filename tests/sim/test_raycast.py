@@ -37,7 +37,8 @@ def inside_other(scene: PipeScene, points, pipe_idx, tol=1e-7):
         q = points - p.start
         h = q @ p.axis
         rad = np.linalg.norm(q - h[:, None] * p.axis, axis=1)
-        bad |= (pipe_idx != k) & (h > -p.extend_start + tol) & (h < p.length + p.extend_end - tol) & (rad < scene.radius - tol)
+        bad |= ((pipe_idx != k) & (h > -p.extend_start + tol) & (h < p.length + p.extend_end - tol)
+                & (rad < scene.radius - tol))
     return bad
 
 

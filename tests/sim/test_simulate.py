@@ -136,7 +136,8 @@ def test_white_card_writes_a_gain_mask(tmp_path):
     assert doc["gain_mask"] == "gain_mask.png"
     mask = cv2.imread(str(out / "gain_mask.png"), cv2.IMREAD_UNCHANGED)
     assert mask.dtype == np.uint16 and mask.shape == (96, 128) and mask.max() == 65535
-    mean = np.mean([cv2.imread(str(f), cv2.IMREAD_UNCHANGED).astype(float) for f in sorted((out / "images").glob("*.png"))], 0)
+    mean = np.mean([cv2.imread(str(f), cv2.IMREAD_UNCHANGED).astype(float)
+                    for f in sorted((out / "images").glob("*.png"))], 0)
     assert np.corrcoef(mask.ravel(), cv2.GaussianBlur(mean, (0, 0), 2).ravel())[0, 1] > 0.9
     ds = load_dataset(out)
     assert ds.has_gain_mask and len(ds) == 4

@@ -381,7 +381,11 @@ def test_one_dof_recovers_a_known_step(camera):
         est, used = estimate_one_dof(b, sums, RADIUS)
         assert used > 100
         assert est == pytest.approx(dh, abs=1e-9)  # a sign error in eq. 40-44 fails here
-        eps = lambda h: sums.epsilon(b.gid, wall_coords(wall_points(R0, [0, -0.025, h], b.bearings, RADIUS)[0], RADIUS)).sum()  # noqa: E731
+
+        def eps(h):
+            wall = wall_points(R0, [0, -0.025, h], b.bearings, RADIUS)[0]
+            return sums.epsilon(b.gid, wall_coords(wall, RADIUS)).sum()
+
         assert eps(dh) < 1e-12 < eps(-dh)
 
 
@@ -482,8 +486,10 @@ def test_run_sparse_result_folder_distance_and_offset(six_inch_sparse, six_inch_
     assert lines[-1] == f"{n - 1},1,straight"  # the last image is always a keyframe
     keyframes = sum(line.split(",")[1] == "1" for line in lines[1:])
     run = json.loads((out / "run.json").read_text())
-    assert run["method"] == SPARSE_METHOD and run["frames"] == n and run["keyframes"] == keyframes == len(result.indices)
-    assert 5 < keyframes < n and run["frames_per_second"] > 0 and set(run["seconds"]) >= {"features", "motion", "unroll"}
+    assert (run["method"] == SPARSE_METHOD and run["frames"] == n
+            and run["keyframes"] == keyframes == len(result.indices))
+    assert (5 < keyframes < n and run["frames_per_second"] > 0
+            and set(run["seconds"]) >= {"features", "motion", "unroll"})
     ev = evaluate(out, six_inch_sparse, write=False)
     assert ev.associated_poses == keyframes
     assert ev.distance.forward.ground_truth > 0.2

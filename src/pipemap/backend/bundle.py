@@ -101,7 +101,8 @@ class BundleState:
     R: np.ndarray  # (N, 3, 3)
     t: np.ndarray  # (N, 3)
     points: np.ndarray  # (M, 3)
-    cylinder: np.ndarray | None  # (gamma, beta, t_X, t_Y[, bend offsets (K, 2) raveled]) relative to the frozen reference
+    # (gamma, beta, t_X, t_Y[, bend offsets (K, 2) raveled]) relative to the frozen reference
+    cylinder: np.ndarray | None
 
     def retract(self, pose_delta: np.ndarray, point_delta: np.ndarray, cylinder_delta=None) -> "BundleState":
         R, t = retract(self.R, self.t, pose_delta)

@@ -213,7 +213,8 @@ class JunctionProblem:
                 on_blue |= a_red > 0
         return on_blue
 
-    def wall_inliers(self, state: JunctionState, on_blue: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+    def wall_inliers(self, state: JunctionState, on_blue: np.ndarray,
+                     reference: np.ndarray | None = None) -> np.ndarray:
         """(M,) bool: the point lies on the wall of its cylinder (see the module docstring); `reference`: the
         previous stage's wall points, over which the median and MAD are taken."""
         d = self.cylinder_distance(state, on_blue)
@@ -348,8 +349,8 @@ class JunctionProblem:
             outliers=lambda ctx: (~ctx[0]).sum(), max_iterations=self.max_iterations,
             outlier_passes=self.outlier_passes)
         inliers, on_blue, on_wall = run.context
-        return self._result(run.state, inliers, on_blue, on_wall, run.cost_history, run.iterations, time.perf_counter() - t0,
-                            run.converged, run.outlier_counts)
+        return self._result(run.state, inliers, on_blue, on_wall, run.cost_history, run.iterations,
+                            time.perf_counter() - t0, run.converged, run.outlier_counts)
 
     def _result(self, state, inliers, on_blue, on_wall, history, iterations, seconds, converged,
                 counts) -> JunctionResult:

@@ -27,7 +27,8 @@ def camera_from_dict(block, where: str | Path | None = None) -> CameraModel:
         raise PipemapError("expected a mapping with model, width, height, params", where, "camera")
     name = block.get("model")
     if name not in MODELS:
-        raise PipemapError(f"unknown camera model {name!r} (expected one of {', '.join(MODELS)})", where, "camera.model")
+        raise PipemapError(f"unknown camera model {name!r} (expected one of {', '.join(MODELS)})", where,
+                           "camera.model")
     for key in ("width", "height", "params"):
         if key not in block:
             raise PipemapError("missing", where, f"camera.{key}")

@@ -23,7 +23,8 @@ class CameraModel(ABC):
     param_names: ClassVar[tuple[str, ...]]
 
     def __init__(self, width: int, height: int, params, max_theta_deg: float | None = None):
-        if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer))) or width <= 0 or height <= 0:
+        if (not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer)))
+                or width <= 0 or height <= 0):
             raise PipemapError(f"image size must be positive integers, got {width}x{height}", key="camera.width/height")
         self.width = int(width)
         self.height = int(height)
@@ -34,7 +35,8 @@ class CameraModel(ABC):
                 raise PipemapError(f"{self.model} camera is missing {', '.join(missing)}", key="camera.params")
             if unknown:
                 raise PipemapError(
-                    f"{self.model} camera has no parameter {', '.join(unknown)} (expected {' '.join(self.param_names)})",
+                    f"{self.model} camera has no parameter {', '.join(unknown)} "
+                    f"(expected {' '.join(self.param_names)})",
                     key="camera.params",
                 )
             try:
@@ -43,7 +45,8 @@ class CameraModel(ABC):
                 raise PipemapError("camera parameters must be numbers", key="camera.params") from None
         p = np.asarray(params, dtype=float).reshape(-1)
         if p.shape != (len(self.param_names),):
-            raise PipemapError(f"{self.model} camera takes {len(self.param_names)} parameters, got {p.size}", key="camera.params")
+            raise PipemapError(f"{self.model} camera takes {len(self.param_names)} parameters, got {p.size}",
+                               key="camera.params")
         if not np.all(np.isfinite(p)):
             raise PipemapError("camera parameters must be finite", key="camera.params")
         self.params = p

@@ -15,7 +15,8 @@ class KannalaBrandtCamera(RadialFisheye):
     def _validate(self):
         for i, name in enumerate(("fx", "fy")):
             if self.params[i] <= 0:
-                raise PipemapError(f"focal length {name} must be positive, got {self.params[i]:g}", key=f"camera.params.{name}")
+                raise PipemapError(f"focal length {name} must be positive, got {self.params[i]:g}",
+                                   key=f"camera.params.{name}")
 
     def _radius(self, theta):
         k1, k2, k3, k4 = self.params[4:]

@@ -17,7 +17,8 @@ class PinholeCamera(CameraModel):
     def _validate(self):
         for i, name in enumerate(("fx", "fy")):
             if self.params[i] <= 0:
-                raise PipemapError(f"focal length {name} must be positive, got {self.params[i]:g}", key=f"camera.params.{name}")
+                raise PipemapError(f"focal length {name} must be positive, got {self.params[i]:g}",
+                                   key=f"camera.params.{name}")
 
     def _radial(self, r2):
         k1, k2, k3 = self.params[4], self.params[5], self.params[8]
@@ -25,7 +26,8 @@ class PinholeCamera(CameraModel):
 
     def _resolve_max_theta(self, given_deg):
         fx, fy, cx, cy = self.params[:4]
-        corners = np.array([[-0.5, -0.5], [self.width - 0.5, -0.5], [-0.5, self.height - 0.5], [self.width - 0.5, self.height - 0.5]])
+        corners = np.array([[-0.5, -0.5], [self.width - 0.5, -0.5], [-0.5, self.height - 0.5],
+                            [self.width - 0.5, self.height - 0.5]])
         reach = np.max(np.hypot((corners[:, 0] - cx) / fx, (corners[:, 1] - cy) / fy))
         # Tangential terms are small; monotonicity is judged on the radial part, as OpenCV does.
         r = np.linspace(0.0, max(4.0 * reach, 1.0), 40001)
@@ -43,7 +45,8 @@ class PinholeCamera(CameraModel):
         self._r_limit = float(limit_r)
         if given_deg is not None:
             if not 0 < given_deg < 90:
-                raise PipemapError(f"max_theta_deg of a pinhole camera must be in (0, 90), got {given_deg}", key="camera.max_theta_deg")
+                raise PipemapError(f"max_theta_deg of a pinhole camera must be in (0, 90), got {given_deg}",
+                                   key="camera.max_theta_deg")
             return float(np.radians(given_deg))
         return float(np.pi / 2)
 

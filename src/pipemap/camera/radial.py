@@ -58,7 +58,8 @@ class RadialFisheye(CameraModel):
             max_theta = np.radians(given_deg)
         else:
             fx, fy, cx, cy = self._affine()
-            corners = np.array([[-0.5, -0.5], [self.width - 0.5, -0.5], [-0.5, self.height - 0.5], [self.width - 0.5, self.height - 0.5]])
+            corners = np.array([[-0.5, -0.5], [self.width - 0.5, -0.5], [-0.5, self.height - 0.5],
+                                [self.width - 0.5, self.height - 0.5]])
             reach = np.max(np.hypot((corners[:, 0] - cx) / fx, (corners[:, 1] - cy) / fy))
             theta = np.linspace(0.0, limit, 20001)
             d, _ = self._radius(theta)
@@ -66,7 +67,8 @@ class RadialFisheye(CameraModel):
             max_theta = float(theta[min(idx, theta.size - 1)])
         if max_theta < np.radians(5.0):
             raise PipemapError(
-                f"the {self.model} projection is not monotone over the field of view (only up to {np.degrees(max_theta):.2f} deg)",
+                f"the {self.model} projection is not monotone over the field of view "
+                f"(only up to {np.degrees(max_theta):.2f} deg)",
                 key="camera.params",
             )
         # Inverse table used to seed Newton's method in unproject().

@@ -103,7 +103,8 @@ def _summary(run: dict | None, frames_csv: Path) -> str:
     elif frames_csv.exists():
         with frames_csv.open() as fh:
             flags = [r.get("keyframe") for r in csv.DictReader(fh)]
-        rows += [["frames", len(flags)], ["keyframes", sum(1 for f in flags if str(f).strip() in ("1", "true", "True"))]]
+        rows += [["frames", len(flags)],
+                 ["keyframes", sum(1 for f in flags if str(f).strip() in ("1", "true", "True"))]]
     problems = run.get("problems") if run else None
     text = "<h2>Summary</h2>" + (_table(["", "value"], rows) if rows else "<p class=missing>no counts recorded</p>")
     if problems:
@@ -358,7 +359,8 @@ def write_report(result_dir: str | Path, dataset_dir: str | Path | None = None) 
     plots = result_dir / PLOTS
     plots.mkdir(exist_ok=True)
     missing = [f"<li><code>{html.escape(name)}</code>: {html.escape(what)}</li>" for name, what in OPTIONAL.items()
-               if not (result_dir / name).exists() or (name == "unrolled" and not any((result_dir / name).glob("*.png")))]
+               if not (result_dir / name).exists()
+               or (name == "unrolled" and not any((result_dir / name).glob("*.png")))]
     title = f"pipemap report: {result_dir.resolve().name}"
     parts = [f"<!DOCTYPE html><html><head><meta charset=utf-8><title>{html.escape(title)}</title>"
              f"<style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>",

@@ -41,7 +41,10 @@ def _worst_leg(pe: np.ndarray, pg: np.ndarray) -> tuple[float, float]:
     dg = np.diff(pg, axis=0)
     turns = np.flatnonzero(np.sum(dg[1:] * dg[:-1], axis=1) < 0) + 1  # pick where the true motion reverses
     bounds = [0, *turns.tolist(), len(pg) - 1]
-    length = lambda p: float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+
+    def length(p):
+        return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+
     truth = length(pg)
     worst = 100.0 * (length(pe) - truth) / truth if truth > 0 else 0.0
     for a, b in zip(bounds[:-1], bounds[1:]):

@@ -156,7 +156,8 @@ class RosBag:
         if topic is None:
             if len(images) != 1:
                 found = ", ".join(sorted(images)) or "none"
-                raise PipemapError(f"name the camera's topic (image topics in the bag: {found})", self.yaml_path, "topic")
+                raise PipemapError(f"name the camera's topic (image topics in the bag: {found})", self.yaml_path,
+                                   "topic")
             topic = next(iter(images))
         if topic not in images:
             other = reader.topics.get(topic)

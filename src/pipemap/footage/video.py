@@ -122,7 +122,8 @@ def video_index(path: Path) -> VideoIndex:
         slots = {int(p): i for i, p in enumerate(ordered)} if ordered is not None else {}
         decoded_at = {p: k for k, p in enumerate(pts)} if ordered is not None else {}
         index = VideoIndex(count, ordered, slots, tb, stated, frozenset(cut), cut_short, ctx.name, ctx.width,
-                           ctx.height, ctx.field_order not in _BOTTOM_FIRST, decoded_at, np.array(keys, np.int64), error)
+                           ctx.height, ctx.field_order not in _BOTTOM_FIRST, decoded_at, np.array(keys, np.int64),
+                           error)
     _INDEX_CACHE[key] = index
     return index
 
@@ -257,7 +258,8 @@ class VideoFile:
                           f"cannot be read: the file is damaged there ({idx.error})")
         if idx.stated > idx.count:
             return Damage(str(self.path), idx.count, missing, "truncated",
-                          f"are missing: the file ends after {idx.count} of the {idx.stated} frames its header promises")
+                          f"are missing: the file ends after {idx.count} of the {idx.stated} frames "
+                          "its header promises")
         if idx.cut_short:
             return Damage(str(self.path), idx.count, 0, "truncated", "are missing: the file is cut short")
         return None

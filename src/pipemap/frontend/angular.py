@@ -75,8 +75,9 @@ def classification_for(camera: CameraModel, s: ClassificationSettings,
 def scaled_settings(camera: CameraModel, s: FrontendSettings) -> dict:
     """The scale and the pixel values it gave, for run.json."""
     f = frontend_for(camera, s)
-    keys = ("template_window", "zncc_patch", "harris_block_px", "min_distance_px", "max_flow_px", "keyframe_min_flow_px",
-            "guided_search_px", "refine_matches_px", "duplicate_px", "anchor_max_shift_px", "lighting_sigma_px")
+    keys = ("template_window", "zncc_patch", "harris_block_px", "min_distance_px", "max_flow_px",
+            "keyframe_min_flow_px", "guided_search_px", "refine_matches_px", "duplicate_px", "anchor_max_shift_px",
+            "lighting_sigma_px")
     return {"pixels_per_degree": round(pixels_per_degree(camera), 4),
             "reference_px_per_deg": s.reference_px_per_deg,
             "scale": round(pixel_scale(camera, s.reference_px_per_deg), 4),

@@ -259,7 +259,8 @@ class SequenceClassifier:
         indices = np.asarray(self.indices, dtype=np.int64)
         raw = np.asarray(self.raw, bool)
         filtered = temporal_filter(raw, self.s.min_cluster_keyframes)
-        return SequenceClass(indices, np.asarray(self.ratios, float), raw, filtered, junction_clusters(indices, filtered))
+        return SequenceClass(indices, np.asarray(self.ratios, float), raw, filtered,
+                             junction_clusters(indices, filtered))
 
 
 def classify_sequence(frames: Dataset | Iterable[Frame], camera: CameraModel | None = None,

@@ -19,7 +19,8 @@ def smooth_for_templates(image: np.ndarray, size: int = 11, window: int = 31) ->
     return cv2.blur(image, (step, step)) if step > 1 else image
 
 
-def describe(smoothed: np.ndarray, keypoints: np.ndarray, size: int = 11, window: int = 31) -> tuple[np.ndarray, np.ndarray]:
+def describe(smoothed: np.ndarray, keypoints: np.ndarray, size: int = 11,
+             window: int = 31) -> tuple[np.ndarray, np.ndarray]:
     """Descriptors (N, size*size) float32 of the corners `keypoints` (N, 2), and which are usable.
 
     All templates are sampled in one `cv2.remap` call. A flat patch (glare, no texture) has no

@@ -12,7 +12,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
-def predict_positions(points: np.ndarray, matched_i: np.ndarray, matched_j: np.ndarray, neighbours: int = 5) -> np.ndarray:
+def predict_positions(points: np.ndarray, matched_i: np.ndarray, matched_j: np.ndarray,
+                      neighbours: int = 5) -> np.ndarray:
     """Predicted positions in image j: each point moved by the median flow of its nearest matched features."""
     if len(matched_i) == 0 or len(points) == 0:
         return np.asarray(points, float).copy()
@@ -58,7 +59,8 @@ def guided_zncc(
     normals = (bearings_i @ E.T).astype(np.float32)  # eta_j . (E eta_i): the epipolar plane of each point
     centres = np.rint(predicted_j).astype(int)
     inside = (
-        (centres[:, 0] - reach >= 0) & (centres[:, 0] + reach < w) & (centres[:, 1] - reach >= 0) & (centres[:, 1] + reach < h)
+        (centres[:, 0] - reach >= 0) & (centres[:, 0] + reach < w)
+        & (centres[:, 1] - reach >= 0) & (centres[:, 1] + reach < h)
     )
     last = 2 * search_px
     todo = np.nonzero(inside)[0]
@@ -73,13 +75,17 @@ def guided_zncc(
     # All templates in one remap call.
     grid = np.arange(-half, half + 1, dtype=np.float32)
     pts = points_i[todo].astype(np.float32)
-    map_x = np.ascontiguousarray(np.broadcast_to(pts[:, 0, None, None] + grid[None, None, :], (len(todo), patch, patch)).reshape(-1, patch))
-    map_y = np.ascontiguousarray(np.broadcast_to(pts[:, 1, None, None] + grid[None, :, None], (len(todo), patch, patch)).reshape(-1, patch))
-    templates = cv2.remap(image_i, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT101).reshape(-1, patch, patch)
+    map_x = np.ascontiguousarray(np.broadcast_to(pts[:, 0, None, None] + grid[None, None, :],
+                                                 (len(todo), patch, patch)).reshape(-1, patch))
+    map_y = np.ascontiguousarray(np.broadcast_to(pts[:, 1, None, None] + grid[None, :, None],
+                                                 (len(todo), patch, patch)).reshape(-1, patch))
+    templates = cv2.remap(image_i, map_x, map_y, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REFLECT101).reshape(-1, patch, patch)
     for n, k in enumerate(todo):
         allowed = allowed_all[n]
         cu, cv = centres[k]
-        score = cv2.matchTemplate(image_j[cv - reach : cv + reach + 1, cu - reach : cu + reach + 1], templates[n], cv2.TM_CCOEFF_NORMED)
+        score = cv2.matchTemplate(image_j[cv - reach : cv + reach + 1, cu - reach : cu + reach + 1], templates[n],
+                                  cv2.TM_CCOEFF_NORMED)
         _, best, _, (c, r) = cv2.minMaxLoc(score, allowed)
         if not best >= zncc_min or r == 0 or c == 0 or r == last or c == last:
             continue

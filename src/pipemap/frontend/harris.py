@@ -126,7 +126,8 @@ def detect_corners(
     if subpix_window > 0:
         # Gradient-based refinement halves the error of the response-peak fit (0.13 vs 0.21 px).
         criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 20, 0.01)
-        fine = cv2.cornerSubPix(np.ascontiguousarray(image, dtype=np.float32), coarse.astype(np.float32).reshape(-1, 1, 2),
+        fine = cv2.cornerSubPix(np.ascontiguousarray(image, dtype=np.float32),
+                                coarse.astype(np.float32).reshape(-1, 1, 2),
                                 (subpix_window, subpix_window), (-1, -1), criteria).reshape(-1, 2).astype(float)
         stable = np.all(np.abs(fine - coarse) < 1.0, axis=1)
         coarse = np.where(stable[:, None], fine, coarse)

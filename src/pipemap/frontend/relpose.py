@@ -25,8 +25,10 @@ from pipemap.geometry.rotations import exp_so3
 
 
 def _monomials() -> list[tuple[int, int, int]]:
-    cubic = [(3, 0, 0), (2, 1, 0), (2, 0, 1), (1, 2, 0), (1, 1, 1), (1, 0, 2), (0, 3, 0), (0, 2, 1), (0, 1, 2), (0, 0, 3)]
-    lower = [(2, 0, 0), (1, 1, 0), (1, 0, 1), (0, 2, 0), (0, 1, 1), (0, 0, 2), (1, 0, 0), (0, 1, 0), (0, 0, 1), (0, 0, 0)]
+    cubic = [(3, 0, 0), (2, 1, 0), (2, 0, 1), (1, 2, 0), (1, 1, 1),
+             (1, 0, 2), (0, 3, 0), (0, 2, 1), (0, 1, 2), (0, 0, 3)]
+    lower = [(2, 0, 0), (1, 1, 0), (1, 0, 1), (0, 2, 0), (0, 1, 1),
+             (0, 0, 2), (1, 0, 0), (0, 1, 0), (0, 0, 1), (0, 0, 0)]
     return cubic + lower
 
 
@@ -138,8 +140,10 @@ def essential_from_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return tx @ R
 
 
-def triangulate_depths(R: np.ndarray, t: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Depths along the bearings (lambda_i, lambda_j) of the mid-point solution of lambda_j eta_j = lambda_i R eta_i + t.
+def triangulate_depths(R: np.ndarray, t: np.ndarray, bearings_i: np.ndarray,
+                       bearings_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Depths along the bearings (lambda_i, lambda_j) of the mid-point solution of
+    lambda_j eta_j = lambda_i R eta_i + t.
 
     Valid for bearings past 90 deg: a point is in front when both depths are positive.
     """
@@ -156,7 +160,8 @@ def triangulate_depths(R: np.ndarray, t: np.ndarray, bearings_i: np.ndarray, bea
     return lam_i, lam_j
 
 
-def decompose_essential(E: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def decompose_essential(E: np.ndarray, bearings_i: np.ndarray,
+                        bearings_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """The (R, unit t) of the four decompositions that puts most pairs in front of both views."""
     u, _, vt = np.linalg.svd(E)
     if np.linalg.det(u) < 0:
@@ -193,7 +198,8 @@ def _tangent_basis(t: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(t, e1)])
 
 
-def refine_pose(R: np.ndarray, t: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+def refine_pose(R: np.ndarray, t: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray,
+                scale: float) -> tuple[np.ndarray, np.ndarray]:
     """Minimise the spherical Sampson errors over R and the unit t (5 degrees of freedom), robustly."""
     tangent = _tangent_basis(t)
 
@@ -206,7 +212,8 @@ def refine_pose(R: np.ndarray, t: np.ndarray, bearings_i: np.ndarray, bearings_j
         Rp, tp = pose(p)
         return sampson_angle(essential_from_pose(Rp, tp), bearings_i, bearings_j) / scale
 
-    result = least_squares(residuals, np.zeros(5), loss="soft_l1", f_scale=1.0, x_scale=1e-3, max_nfev=50, ftol=1e-12, xtol=1e-12)
+    result = least_squares(residuals, np.zeros(5), loss="soft_l1", f_scale=1.0, x_scale=1e-3, max_nfev=50,
+                           ftol=1e-12, xtol=1e-12)
     return pose(result.x)
 
 

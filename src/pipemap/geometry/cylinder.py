@@ -301,5 +301,5 @@ def fit_cylinder(points, radius: float, *, reference=None, direction=None, huber
     return CylinderFit(cyl, p, (ref_R, ref_t), inliers, rms, abs(r_free), it_total, rms**2 * np.linalg.pinv(J.T @ J))
 
 
-__all__ = ["Cylinder", "CylinderFit", "axis_frame", "fit_cylinder", "local_frame", "local_distance", "distance_jacobians",
-           "rot_x", "rot_y", "rot_z"]
+__all__ = ["Cylinder", "CylinderFit", "axis_frame", "fit_cylinder", "local_frame", "local_distance",
+           "distance_jacobians", "rot_x", "rot_y", "rot_z"]

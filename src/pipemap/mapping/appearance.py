@@ -52,8 +52,8 @@ from pipemap.output import atomic_write_bytes
 # (down the next pipe from a tee), where one pixel covers centimetres and would blur the map.
 REACH_RADII = 2.0
 REACH_TAPER = 0.25  # fraction of the reach over which samples fade out (with edge_taper_deg > 0)
-_REMAP_WIDTH = 1024
-LIGHT_FIELD_FRAMES = 40  # keyframes spread along the run whose median is the light field (exposure.py)  # cv2.remap maps are kept 2-D and below its 32767 size limit
+_REMAP_WIDTH = 1024  # cv2.remap maps are kept 2-D and below its 32767 size limit
+LIGHT_FIELD_FRAMES = 40  # keyframes spread along the run whose median is the light field (exposure.py)
 
 
 @dataclass
@@ -160,7 +160,8 @@ def build_appearance(dataset: Dataset, keyframe_indices, poses_T_wc, pieces: lis
         spread = np.unique(idx[order][np.linspace(0, len(idx) - 1, min(len(idx), LIGHT_FIELD_FRAMES)).astype(int)]) \
             if len(idx) else idx
         exposure = ExposureLevels(dataset.camera, band, usable)
-        exposure.use_light(exposure.light_field(f.image for f, _ in _frames_at(dataset, spread, np.arange(len(spread)))))
+        spread_frames = _frames_at(dataset, spread, np.arange(len(spread)))
+        exposure.use_light(exposure.light_field(f.image for f, _ in spread_frames))
     done = 0
     for frame, k in _frames_at(dataset, idx[order], order):
         image = frame.image if exposure is None else exposure.normalise(frame.image)
@@ -352,5 +353,5 @@ def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_w
     }
 
 
-__all__ = ["PieceMap", "AppearanceMap", "build_appearance", "colatitude_band", "bilinear", "write_appearance_ply", "read_appearance_ply",
-           "write_maps", "write_unrolled"]
+__all__ = ["PieceMap", "AppearanceMap", "build_appearance", "colatitude_band", "bilinear", "write_appearance_ply",
+           "read_appearance_ply", "write_maps", "write_unrolled"]

@@ -188,7 +188,8 @@ def wall_grid(piece: WallPiece, spacing_m: float) -> WallGrid:
     return WallGrid(piece, h, phi, ring)
 
 
-def sample_wall(piece: WallPiece, spacing_m: float, others: list[WallPiece] | tuple = ()) -> tuple[np.ndarray, np.ndarray]:
+def sample_wall(piece: WallPiece, spacing_m: float,
+                others: list[WallPiece] | tuple = ()) -> tuple[np.ndarray, np.ndarray]:
     """The grid's 3D points (H, W, 3) and a mask (H, W), False where the point lies inside
     another piece's pipe (a tee's branch opening): the wall is not there."""
     grid = wall_grid(piece, spacing_m)

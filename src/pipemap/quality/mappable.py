@@ -52,9 +52,9 @@ def require_mappable(stats: FrameStats, keyframes: int, frames_total: int, repea
     q = settings.quality
     n = stats.frames
     if n and stats.dark >= 0.9 * n:
-        raise PipemapError(f"{stats.dark} of {n} distinct frames ({frames_total} read) are dark (fewer than {100 * q.min_lit_fraction:.0f} % "
-                           f"of their pixels above grey level {settings.frontend.dark_level:g}): were the robot's "
-                           "lights on? nothing was mapped", where)
+        raise PipemapError(f"{stats.dark} of {n} distinct frames ({frames_total} read) are dark "
+                           f"(fewer than {100 * q.min_lit_fraction:.0f} % of their pixels above grey level "
+                           f"{settings.frontend.dark_level:g}): were the robot's lights on? nothing was mapped", where)
     if n and stats.dark + stats.blank >= 0.9 * n:
         raise PipemapError(f"{stats.blank} of {n} distinct frames show no wall texture (grey-level detail below "
                            f"{q.min_texture:g}): a covered or defocused lens? nothing was mapped", where)

@@ -109,7 +109,8 @@ def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_s
     checks = []
     if revisit is not None and revisit.status == "closed" and route_length_m > 0:
         checks.append(above("loop closure", revisit.max_correction_m / route_length_m, q.loop_correction,
-                            "loop closure moved a pose by a fraction of the route of", fmt=lambda x: f"{100 * x:.2f} %"))
+                            "loop closure moved a pose by a fraction of the route of",
+                            fmt=lambda x: f"{100 * x:.2f} %"))
     return RunVerdict(out, checks, gaps)
 
 

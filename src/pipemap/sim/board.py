@@ -118,7 +118,8 @@ def _visible(camera, R, t, corners, outline, min_square_px, board) -> bool:
         return False
     nx, ny = board
     grid = uv.reshape(ny, nx, 2)
-    step = min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(), np.linalg.norm(np.diff(grid, axis=1), axis=-1).min())
+    step = min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(),
+               np.linalg.norm(np.diff(grid, axis=1), axis=-1).min())
     return bool(step >= min_square_px)
 
 

@@ -45,7 +45,8 @@ class LedRing:
         if not (self.ring_radius_m >= 0 and math.isfinite(self.ring_radius_m)):
             raise PipemapError(f"LED ring radius must be >= 0, got {self.ring_radius_m}", key="lighting.ring_radius_m")
         if not (0 < self.beam_half_angle_deg < 90):
-            raise PipemapError(f"LED beam half angle must lie in (0, 90) deg, got {self.beam_half_angle_deg}", key="lighting.beam_half_angle_deg")
+            raise PipemapError(f"LED beam half angle must lie in (0, 90) deg, got {self.beam_half_angle_deg}",
+                               key="lighting.beam_half_angle_deg")
         if not (self.power >= 0 and math.isfinite(self.power)):
             raise PipemapError(f"LED power must be >= 0, got {self.power}", key="lighting.power")
         if not (-90 < self.tilt_deg < 90):
@@ -254,11 +255,13 @@ class Sensor:
         return e.astype(np.uint8 if self.bit_depth <= 8 else np.uint16)
 
 
-def auto_exposure(radiance: np.ndarray, theta: np.ndarray, sensor: Sensor, target: float = 0.45, percentile: float = 50) -> float:
+def auto_exposure(radiance: np.ndarray, theta: np.ndarray, sensor: Sensor, target: float = 0.45,
+                  percentile: float = 50) -> float:
     """Exposure that puts the `percentile` of lit, finite pixels at `target` of full scale
     (after vignetting and gamma). Call once per sequence: the robots ran with fixed exposure."""
     if not (0 < target <= 1 and 0 <= percentile <= 100):
-        raise PipemapError(f"auto exposure needs 0 < target <= 1 and a percentile in [0, 100], got {target}, {percentile}")
+        raise PipemapError("auto exposure needs 0 < target <= 1 and a percentile in [0, 100], "
+                           f"got {target}, {percentile}")
     r = np.asarray(radiance, np.float32) * sensor.vignetting_factor(theta)
     r = r[np.isfinite(r) & (r > 0)]
     if r.size == 0:

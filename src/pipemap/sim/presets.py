@@ -89,7 +89,8 @@ def get_setup(name: str, width: int | None = None, height: int | None = None, ro
         raise PipemapError(f"preset {name!r} writes its own dataset folder", key="preset")
     route = route or info.routes[0]
     if route not in info.routes:
-        raise PipemapError(f"preset {name} has no route {route!r} (expected one of {', '.join(info.routes)})", key="route")
+        raise PipemapError(f"preset {name} has no route {route!r} (expected one of {', '.join(info.routes)})",
+                           key="route")
     return info.build(width, height, route, seed)
 
 
@@ -123,7 +124,8 @@ def fisheye_camera(width=None, height=None) -> PolynomialCamera:
     return PolynomialCamera(w, h, params, b["max_theta_deg"])
 
 
-def perspective_camera(base_w: int, base_h: int, hfov_deg: float, k1: float, k2: float, width=None, height=None) -> PinholeCamera:
+def perspective_camera(base_w: int, base_h: int, hfov_deg: float, k1: float, k2: float, width=None,
+                       height=None) -> PinholeCamera:
     """A pinhole camera with mild radial distortion and the given horizontal angle of view."""
     w, h, _ = _size(width, height, base_w, base_h)
     # fx such that the distorted image edge sits at hfov / 2
@@ -163,16 +165,18 @@ def _loop_setup(name, corners, width, height, route, seed, *, fisheye_scale_w=No
                 sag=0.004, misalign=0.002, start_back=1.5, end_before=1.5, radius=0.2, camera=None,
                 drive_extra=None, appearance=None) -> Setup:
     """A tee loop. Route A: start on side T4-T1, turn at T1, T2, T3, T4, end on side T4-T1
-    `end_before` metres short of the start (past it when negative). Route B: start on side T1-T4 heading to T4, turn at T4, T3, T2, T1, T4, end on
-    side T4-T3."""
-    scene = tee_loop_scene(corners, radius, stub_length=stub, piece_length=piece, sag_m=sag, misalign_m=misalign, seed=seed)
+    `end_before` metres short of the start (past it when negative). Route B: start on side T1-T4
+    heading to T4, turn at T4, T3, T2, T1, T4, end on side T4-T3."""
+    scene = tee_loop_scene(corners, radius, stub_length=stub, piece_length=piece, sag_m=sag, misalign_m=misalign,
+                           seed=seed)
     n = len(corners)
     if route == "A":
         legs = [(f"S{n}", False)] + [(f"S{k}", False) for k in range(1, n + 1)]
         side = np.linalg.norm(corners[0] - corners[-1])
         start, end = side - start_back, -(start_back + end_before)
     else:
-        legs = [(f"S{n}", True)] + [(f"S{k}", True) for k in range(n - 1, 0, -1)] + [(f"S{n}", True), (f"S{n - 1}", True)]
+        legs = ([(f"S{n}", True)] + [(f"S{k}", True) for k in range(n - 1, 0, -1)]
+                + [(f"S{n}", True), (f"S{n - 1}", True)])
         side = np.linalg.norm(corners[0] - corners[-1])
         start, end = side - start_back, -(np.linalg.norm(corners[-1] - corners[-2]) - end_before)
     poly = route_polyline(scene, legs)
@@ -204,7 +208,8 @@ def _demo_loop(width, height, route, seed):
 
 def _fisheye_straight(width, height, route, seed):
     scene = straight_scene(6.0, 0.2, piece_length=2.0, sag_m=0.003, misalign_m=0.0015, seed=seed)
-    drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", start_m=0.5, end_m=5.0, reverse=route == "forward-reverse")
+    drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", start_m=0.5, end_m=5.0,
+                  reverse=route == "forward-reverse")
     return Setup("fisheye-straight", scene, fisheye_camera(width, height), scene.runs["S1"], drive,
                  Appearance(mm_per_px=1.0), 7.5)
 
@@ -339,9 +344,9 @@ register_preset("cctv-recording", "cctv-straight as recorded footage: 720x576, c
                 "by default (H.264 CRF 28, counter and clock, gain drift and steps, 5 % repeated, 1 % dropped frames)",
                 ("forward", "forward-reverse"), _cctv_recording)
 for _mount in (90, 75, 50):
-    register_preset(f"wall-camera-{_mount}", f"640x480 70 deg camera 3 cm beside and 4 cm below the axis of a 387.56 mm "
-                    f"pipe, its optical axis at {_mount} deg to the pipe axis", ("forward-reverse", "forward"),
-                    _wall_camera(_mount))
+    register_preset(f"wall-camera-{_mount}", f"640x480 70 deg camera 3 cm beside and 4 cm below the axis of a "
+                    f"387.56 mm pipe, its optical axis at {_mount} deg to the pipe axis",
+                    ("forward-reverse", "forward"), _wall_camera(_mount))
 register_preset("white-card", "2010 report gain-mask images: white wall, LEDs on, still camera; writes gain_mask.png; "
                 "route = the robot", ("6in", "16in"), _white_card)
 
@@ -352,7 +357,8 @@ def _calibration(folder: Path, *, width=None, height=None, frames=None, seed=0, 
 
     model = route or "polynomial"
     if model not in CALIBRATION_MODELS:
-        raise PipemapError(f"preset calibration has no route {model!r} (expected one of {', '.join(CALIBRATION_MODELS)})",
+        raise PipemapError(f"preset calibration has no route {model!r} "
+                           f"(expected one of {', '.join(CALIBRATION_MODELS)})",
                            key="route")
     if model == "pinhole":
         camera = perspective_camera(1024, 768, 70.0, -0.12, 0.02, width, height)

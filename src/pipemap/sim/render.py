@@ -104,7 +104,8 @@ class Renderer:
         self.texture = WallTexture(int(seed), appearance.mm_per_px, appearance.texture_style)
         self.leds = appearance.leds()
         circ = 2 * np.pi * scene.radius
-        self.surfaces = [self.texture.surface(p.id, p.extend_start + p.length + p.extend_end, circ) for p in scene.pipes]
+        self.surfaces = [self.texture.surface(p.id, p.extend_start + p.length + p.extend_end, circ)
+                         for p in scene.pipes]
         self.exposure = appearance.exposure
 
     # -- geometry and radiance ------------------------------------------------------------------

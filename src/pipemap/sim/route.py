@@ -5,7 +5,8 @@ by circular arcs (fillets): `turn_radius` at tees (about a pipe radius), a large
 slight kinks of misaligned joints. The camera rides `offset_down_m` below the axis (the robot
 sits on the pipe floor; world z is up), looks along the path tangent ('forward', the fisheye
 robot) or up at the wall with image x along the pipe ('up', the 2010 report's cameras; `mount_deg`
-turns it from square to the wall towards the direction of travel), and wobbles smoothly (a function of distance driven, so a stopped robot is still).
+turns it from square to the wall towards the direction of travel), and wobbles smoothly (a
+function of distance driven, so a stopped robot is still).
 Frames are spaced by distance (about `spacing_m`, varied smoothly: the speed changes); a
 forward-and-reverse run drives to the end, stops, and drives back in reverse still facing
 forward (the 2010 report's forward & reverse datasets).

@@ -258,7 +258,8 @@ def wall_caster(preset: str, width: int, height: int, frames: int, seed: int, sp
     (origin (3,), unit world directions (N, 3)) -> (points (N, 3), hit (N,)), for judging results."""
     from pipemap.sim.raycast import RayCaster
 
-    caster = RayCaster(plan(preset, width=width, height=height, frames=frames, seed=seed, spacing_m=spacing_m).setup.scene, dtype=np.float64)
+    caster = RayCaster(plan(preset, width=width, height=height, frames=frames, seed=seed,
+                            spacing_m=spacing_m).setup.scene, dtype=np.float64)
 
     def cast(origin, directions):
         hits = caster.cast_world(origin, directions)

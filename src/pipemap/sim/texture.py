@@ -131,7 +131,8 @@ def _remap(img: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
     step = _MAP_WIDTH * 16384
     for i in range(0, mx.size, step):
         out[i : i + step] = cv2.remap(
-            img, mx[i : i + step].reshape(-1, _MAP_WIDTH), my[i : i + step].reshape(-1, _MAP_WIDTH), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP
+            img, mx[i : i + step].reshape(-1, _MAP_WIDTH), my[i : i + step].reshape(-1, _MAP_WIDTH), cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_WRAP
         ).ravel()
     return out[:n]
 
@@ -158,9 +159,11 @@ class WallTexture:
 
     def __post_init__(self):
         if self.style not in STYLES:
-            raise PipemapError(f"unknown wall texture style {self.style!r} (expected {', '.join(STYLES)})", key="texture.style")
+            raise PipemapError(f"unknown wall texture style {self.style!r} (expected {', '.join(STYLES)})",
+                               key="texture.style")
         if not (self.mm_per_px > 0 and math.isfinite(self.mm_per_px)):
-            raise PipemapError(f"texture resolution must be positive, got {self.mm_per_px} mm/px", key="texture.mm_per_px")
+            raise PipemapError(f"texture resolution must be positive, got {self.mm_per_px} mm/px",
+                               key="texture.mm_per_px")
 
     def surface(self, key: str, length_m: float, circumference_m: float) -> WallSurface:
         """The baked surface of segment `key` (cached: the same key and size return the same object)."""
@@ -264,7 +267,8 @@ def _base(rng, rows: int, cols: int, px: float, contrast: float, stains: bool, m
     if stains:
         # soft limits keep unpainted wall between 0.2 and 0.92 so that paint stays the darkest thing
         lo, hi = 0.2, 0.92
-        g = np.float32(0.5 * (lo + hi)) + np.float32(0.5 * (hi - lo)) * np.tanh((g - 0.5 * (lo + hi)) / (0.5 * (hi - lo)))
+        g = (np.float32(0.5 * (lo + hi))
+             + np.float32(0.5 * (hi - lo)) * np.tanh((g - 0.5 * (lo + hi)) / (0.5 * (hi - lo))))
     g = cv2.copyMakeBorder(g.astype(np.float32), 0, 0, 3, 3, cv2.BORDER_REFLECT_101)
 
     out = np.empty((rows, cols), np.float32)
@@ -386,13 +390,15 @@ def _paint_pits(albedo: np.ndarray, rng, px: float) -> None:
         for _ in range(rng.integers(3, 15)):
             c = (int(rng.integers(0, size)), int(rng.integers(0, size)))
             ax = (max(1, round(rng.uniform(0.001, 0.005) / px)), max(1, round(rng.uniform(0.001, 0.005) / px)))
-            cv2.ellipse(canvas, c, ax, float(rng.uniform(0, 180)), 0, 360, float(rng.uniform(0.5, 0.85)), -1, cv2.LINE_AA)
+            cv2.ellipse(canvas, c, ax, float(rng.uniform(0, 180)), 0, 360, float(rng.uniform(0.5, 0.85)), -1,
+                        cv2.LINE_AA)
         halo = cv2.GaussianBlur(canvas, (0, 0), size / 6)
         alpha = np.clip(canvas + 0.5 * halo, 0, 0.9)
         _blend(albedo, int(rng.integers(0, rows)), int(rng.integers(-size // 2, cols)), alpha, 0.08)
 
 
-_TEXTS = ("T{a}-{L} {x:.2f}m", "P{n:02d}", "LNG-{n} 16in", "NDT {n:03d}", "KP {x:.1f}", "SEC {L}{a}", "FLOW", "J{a}/{n}")
+_TEXTS = ("T{a}-{L} {x:.2f}m", "P{n:02d}", "LNG-{n} 16in", "NDT {n:03d}", "KP {x:.1f}", "SEC {L}{a}", "FLOW",
+          "J{a}/{n}")
 
 
 def _text_mask(text: str, height_px: float, font: int) -> np.ndarray:
@@ -419,7 +425,8 @@ def _arrow_mask(length_px: int, width_px: int) -> np.ndarray:
     cv2.arrowedLine(canvas, (W, 2 * W), (L + W, 2 * W), 255, W, cv2.LINE_AA, tipLength=min(0.4, 2.5 * W / L))
     mask = canvas.astype(np.float32) / 255.0
     if scale > 1:
-        mask = cv2.resize(mask, (max(1, round(mask.shape[1] / scale)), max(1, round(mask.shape[0] / scale))), interpolation=cv2.INTER_AREA)
+        mask = cv2.resize(mask, (max(1, round(mask.shape[1] / scale)), max(1, round(mask.shape[0] / scale))),
+                          interpolation=cv2.INTER_AREA)
     return mask
 
 
@@ -431,7 +438,8 @@ def _paint_markings(albedo: np.ndarray, rng, px: float) -> None:
     marks = []
     for _ in range(1 + rng.poisson(0.6 * length)):
         text = str(rng.choice(_TEXTS)).format(
-            a=int(rng.integers(1, 9)), L="ABCDEFGH"[int(rng.integers(0, 8))], n=int(rng.integers(1, 999)), x=rng.uniform(0, 9.9)
+            a=int(rng.integers(1, 9)), L="ABCDEFGH"[int(rng.integers(0, 8))], n=int(rng.integers(1, 999)),
+            x=rng.uniform(0, 9.9)
         )
         mask = _text_mask(text, rng.uniform(0.035, 0.07) / px, fonts[int(rng.integers(0, 3))])
         marks.append(cv2.rotate(mask, cv2.ROTATE_90_CLOCKWISE) if rng.random() < 0.3 else mask)
@@ -450,5 +458,6 @@ def _paint_markings(albedo: np.ndarray, rng, px: float) -> None:
         if rng.random() < 0.5:
             a, b = 0, cols
         edge = np.minimum(np.arange(width) + 0.5, width - 0.5 - np.arange(width)) / 1.5
-        alpha = np.clip(edge, 0, 1).astype(np.float32)[:, None] * np.float32(0.75) * np.ones((1, max(0, b - a)), np.float32)
+        alpha = (np.clip(edge, 0, 1).astype(np.float32)[:, None] * np.float32(0.75)
+                 * np.ones((1, max(0, b - a)), np.float32))
         _blend(albedo, int(rng.integers(0, rows)), int(a), alpha, 0.25)

@@ -130,8 +130,8 @@ def require_wall_view(dataset: Dataset, settings: Settings, mount: Mount | None)
         return
     from pipemap.view import ALONG, camera_view
 
-    misfit = f"the straight-pipe model does not fit these images (mount batch reprojection RMS {mount.rms_px:.1f} px, " \
-             f"limit {limit:g})"
+    misfit = (f"the straight-pipe model does not fit these images (mount batch reprojection RMS {mount.rms_px:.1f} "
+              f"px, limit {limit:g})")
     try:
         view = camera_view(dataset, settings)
     except PipemapError:
