@@ -24,22 +24,28 @@ import numpy as np
 import yaml
 
 from pipemap.backend.join import join_sections
+from pipemap.backend.network_map import (
+    MappedJunction,
+    MappedSection,
+    map_junctions,
+    map_sections,
+    name_junctions,
+    wall_pieces,
+)
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.backend.revisit import RevisitReport, close_network_loops
-from pipemap.backend.network_map import (MappedJunction, MappedSection, map_junctions, map_sections, name_junctions,
-                                         wall_pieces)
 from pipemap.backend.sparse_ply import write_sparse_ply
 from pipemap.backend.straight import StraightResult, StraightVO
 from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
+from pipemap.footage import FootageLog
 from pipemap.frontend import FeatureTracker
 from pipemap.frontend.angular import classification_for, scaled_settings
-from pipemap.footage import FootageLog
 from pipemap.frontend.classification import SequenceClass, SequenceClassifier
-from pipemap.frontend.usable import UsableMask, usable_mask
 from pipemap.frontend.tracks import Keyframe
 from pipemap.frontend.tracks_io import write_frames_csv
+from pipemap.frontend.usable import UsableMask, usable_mask
 from pipemap.geometry.bend import OFFSET_SIGMA_M
 from pipemap.mapping import WallPiece, write_maps
 from pipemap.output import atomic_write_text, result_folder

@@ -37,17 +37,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from pipemap.camera.base import CameraModel
 from pipemap.config import BundleSettings
+from pipemap.geometry.bend import AxisKnots
+from pipemap.geometry.cylinder import Cylinder, CylinderFit, distance_jacobians, local_distance, local_frame
+from pipemap.geometry.rotations import skew
+from pipemap.geometry.se3 import as_rt, retract, to_matrix, world_to_camera
 from pipemap.solvers.robust import huber_cost, huber_weights, mad_inliers
 from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
 from pipemap.solvers.staged_lm import solve_in_stages
 
 _B = BundleSettings()  # the problems' defaults are the settings' own
-from pipemap.camera.base import CameraModel
-from pipemap.geometry.bend import AxisKnots
-from pipemap.geometry.cylinder import Cylinder, CylinderFit, distance_jacobians, local_distance, local_frame
-from pipemap.geometry.se3 import as_rt, retract, to_matrix, world_to_camera
-from pipemap.geometry.rotations import skew
 
 
 

@@ -36,20 +36,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from pipemap.config import BundleSettings
 from pipemap.backend.bundle import problem_inputs
 from pipemap.backend.end_cylinders import fit_end_cylinder, fit_end_cylinders
-from pipemap.solvers.robust import huber_cost, huber_weights, mad_inliers
-from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
-from pipemap.solvers.staged_lm import solve_in_stages
-
-_B = BundleSettings()  # the problems' defaults are the settings' own
 from pipemap.camera.base import CameraModel
+from pipemap.config import BundleSettings
 from pipemap.errors import PipemapError
 from pipemap.geometry.cylinder import Cylinder, CylinderFit
 from pipemap.geometry.rotations import skew
 from pipemap.geometry.se3 import as_rt, compose, invert, retract, to_matrix, world_to_camera
 from pipemap.geometry.tee import TeeModel, adjoint_of_inverse
+from pipemap.solvers.robust import huber_cost, huber_weights, mad_inliers
+from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
+from pipemap.solvers.staged_lm import solve_in_stages
+
+_B = BundleSettings()  # the problems' defaults are the settings' own
 
 _PHI_RIDGE = 1e-9  # keeps the reduced system definite when nothing observes some part of Phi
 _THROUGH_MIN_POINTS = 20  # points beyond the junction that show a pipe running on through it

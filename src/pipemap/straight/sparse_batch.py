@@ -104,9 +104,10 @@ def _solve_on_wall(gids, uvs, bearings, R, C, camera, radius, held: int, wall_si
 
 
 def bundle_window(gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[np.ndarray], R: np.ndarray,
-                  C: np.ndarray, camera: CameraModel, radius: float, held: int, *, wall_sigma_m: float = _S.offset_wall_sigma_m,
-                  huber_px: float = _S.offset_huber_px, mad_k: float = _S.offset_mad_k,
-                  outlier_passes: int = _S.offset_outlier_passes, iterations: int = _S.offset_batch_iterations) -> tuple[np.ndarray, np.ndarray, float] | None:
+                  C: np.ndarray, camera: CameraModel, radius: float, held: int, *,
+                  wall_sigma_m: float = _S.offset_wall_sigma_m, huber_px: float = _S.offset_huber_px,
+                  mad_k: float = _S.offset_mad_k, outlier_passes: int = _S.offset_outlier_passes,
+                  iterations: int = _S.offset_batch_iterations) -> tuple[np.ndarray, np.ndarray, float] | None:
     """The sliding refinement as a bundle adjustment on the wall: the window's keyframes (R (K, 3, 3), C (K, 3) in
     the pipe frame), the first `held` of them fixed where earlier windows left them, the rest free in all six
     degrees of freedom, the points on a wall of the known radius. The wall's axis is free in the solve (no other
@@ -145,9 +146,10 @@ def onto_axis(cylinder: Cylinder, R: np.ndarray, C: np.ndarray, anchor_R: np.nda
 
 
 def bundle_batch(gids: list[np.ndarray], uvs: list[np.ndarray], bearings: list[np.ndarray], R: np.ndarray,
-                 C: np.ndarray, camera: CameraModel, radius: float, *, wall_sigma_m: float = _S.offset_wall_sigma_m,
-                 huber_px: float = _S.offset_huber_px, mad_k: float = _S.offset_mad_k,
-                 outlier_passes: int = _S.offset_outlier_passes, iterations: int = _S.offset_batch_iterations) -> BatchResult | None:
+                 C: np.ndarray, camera: CameraModel, radius: float, *,
+                 wall_sigma_m: float = _S.offset_wall_sigma_m, huber_px: float = _S.offset_huber_px,
+                 mad_k: float = _S.offset_mad_k, outlier_passes: int = _S.offset_outlier_passes,
+                 iterations: int = _S.offset_batch_iterations) -> BatchResult | None:
     """Bundle adjustment of the batch's keyframes (poses R (K, 3, 3), C (K, 3) in the pipe frame as
     start) and wall points, with the pipe axis free relative to the first keyframe. None when the
     batch has too few shared points to constrain its unknowns."""
