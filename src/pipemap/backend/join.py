@@ -7,8 +7,9 @@ straight section before the tee (red) is held, with its last `bundle.tee_hold_ke
 keyframes; the straight section after it (blue) moves as one rigid body with Phi through its first
 pose P_b and first `bundle.tee_attach_keyframes`. Everything the camera did after P_b then takes the
 same rigid correction (`PipeMap.move_after`), so the next tee starts from the corrected place. The
-tee centre is the model's intersection point I. A junction without a straight section on both sides, whose end cylinders could not be
-fitted, or whose solve fails keeps the VO's chaining and its axes-based centre, and says why.
+tee centre is the model's intersection point I. A junction without a straight section on both
+sides, whose end cylinders could not be fitted, or whose solve fails keeps the VO's chaining and its
+axes-based centre, and says why.
 """
 
 from __future__ import annotations
