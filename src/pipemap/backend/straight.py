@@ -14,7 +14,8 @@ of the a-priori radius fitted to the window's points (eq. 2-6), its axis allowed
 a sagging run (`bundle.bend_knot_m`, `pipemap.geometry.bend`). Gauge: every pose older
 than the window and every pose of the window already solved by a previous window is held
 (`fixed_share` limits that to the oldest share, `fixed_overlap` to the oldest few), so consecutive
-windows chain; the first window holds its first pose. A section's last keyframes get a final (partial) window when it ends.
+windows chain; the first window holds its first pose. A section's last keyframes get a final (partial) window
+when it ends.
 
 Metric scale comes from the radius alone. The section starts at unit scale (one unit per first
 keyframe step); before its first window solve, the whole section is scaled by r / free_radius of
@@ -390,7 +391,31 @@ class StraightVO:
         n = last - first + 1
         if n < self.s.min_window_keyframes or last <= self._solved_until:
             return
-        # Observations of live points in the window; a point needs two of them.
+        ks, rows, pixels, uniq, inv = self._window_observations(first, last)
+        if len(uniq) < self.s.min_window_points:
+            return
+        R = np.stack(self.R[first:last + 1])
+        scaled = self._window_cylinder(uniq, first, last, R)
+        if scaled is None:
+            return
+        fit, c, rescale = scaled
+        fixed = self._held_poses(first, last)
+        kwargs = dict(fixed_poses=fixed, cylinder=fit, cylinder_reference=0, cylinder_points=fit.inliers)
+        if self.b.tau <= 0 and len(fixed) < 2:
+            kwargs["fixed_distance"] = (0, n - 1)
+        obs = Observations(ks - first, inv, pixels)
+        before = np.mean(np.linalg.norm(np.diff(c, axis=0), axis=1))
+        res = BundleProblem.from_settings(self.camera, (R, c), self._X[uniq], obs, self.b, **kwargs).solve()
+        after = self._take_window(res, uniq, first, last, ks, rows, R[0])
+        sec.scale = "cylinder"
+        sec.windows += 1
+        self.windows.append(WindowReport(sec.number, int(first), int(last), len(fixed), len(uniq), len(obs),
+                                         float(res.time_s), int(res.iterations), float(res.rms_px),
+                                         float(res.cylinder_rms_m), float(rescale), float(after / before)))
+
+    def _window_observations(self, first: int, last: int):
+        """Observations of live points in keyframes first..last, a point needing two of them: (keyframe, row in
+        it, pixel) of each, the points' track ids (sorted) and each observation's position among them."""
         ks, rows, tids, pixels = [], [], [], []
         for k in range(first, last + 1):
             kf = self.keyframes[k]
@@ -405,9 +430,12 @@ class StraightVO:
         keep = counts[inv] >= 2
         ks, rows, tids, pixels = ks[keep], rows[keep], tids[keep], pixels[keep]
         uniq, inv = np.unique(tids, return_inverse=True)
-        if len(uniq) < self.s.min_window_points:
-            return
-        R = np.stack(self.R[first:last + 1])
+        return ks, rows, pixels, uniq, inv
+
+    def _window_cylinder(self, uniq: np.ndarray, first: int, last: int, R: np.ndarray):
+        """The cylinder of the window's points, after the rescale that puts them on the wall (the section's by
+        its free radius before its first window, the tail's after): (fit, window camera centres, rescale), or
+        None when no cylinder fits."""
         c = np.stack(self.c[first:last + 1])
         direction = c[-1] - c[0]
         if np.linalg.norm(direction) <= 0:
@@ -432,23 +460,27 @@ class StraightVO:
                 fit = fit_cylinder(self._X[uniq], self.radius, reference=(R[0], c[0]), direction=c[-1] - c[0],
                                    huber=self.b.huber_m)
         except (ValueError, np.linalg.LinAlgError):
-            return
+            return None
+        return fit, c, rescale
+
+    def _held_poses(self, first: int, last: int) -> list[int]:
+        """The window's poses (0 = keyframe `first`) the solve holds: the first pose of a section's first window,
+        else the oldest of those a previous window solved (`fixed_share`, `fixed_overlap`)."""
         numbers = np.arange(first, last + 1)
         if self._solved_until < first:
-            fixed = [0]
-        else:
-            fixed = np.flatnonzero(numbers <= self._solved_until)
-            if self.s.fixed_share is not None:
-                fixed = fixed[: max(int(round(self.s.fixed_share * len(fixed))), 1)]
-            if self.s.fixed_overlap is not None:
-                fixed = fixed[: max(self.s.fixed_overlap, 1)]
-            fixed = fixed.tolist()
-        kwargs = dict(fixed_poses=fixed, cylinder=fit, cylinder_reference=0, cylinder_points=fit.inliers)
-        if self.b.tau <= 0 and len(fixed) < 2:
-            kwargs["fixed_distance"] = (0, n - 1)
-        obs = Observations(ks - first, inv, pixels)
-        before = np.mean(np.linalg.norm(np.diff(c, axis=0), axis=1))
-        res = BundleProblem.from_settings(self.camera, (R, c), self._X[uniq], obs, self.b, **kwargs).solve()
+            return [0]
+        fixed = np.flatnonzero(numbers <= self._solved_until)
+        if self.s.fixed_share is not None:
+            fixed = fixed[: max(int(round(self.s.fixed_share * len(fixed))), 1)]
+        if self.s.fixed_overlap is not None:
+            fixed = fixed[: max(self.s.fixed_overlap, 1)]
+        return fixed.tolist()
+
+    def _take_window(self, res, uniq: np.ndarray, first: int, last: int, ks: np.ndarray, rows: np.ndarray,
+                     R0: np.ndarray) -> float:
+        """Keep a window's solve: its poses and points, its outliers dropped, the wall it leaves; returns the mean
+        keyframe step length after it."""
+        numbers = np.arange(first, last + 1)
         for i, k in enumerate(numbers):
             self.R[k] = res.poses[i, :3, :3].copy()
             self.c[k] = res.poses[i, :3, 3].copy()
@@ -461,7 +493,7 @@ class StraightVO:
             self.active[k][r] = False
         after = np.mean(np.linalg.norm(np.diff(res.poses[:, :3, 3], axis=0), axis=1))
         try:
-            self._wall = fit_cylinder(res.points[good], self.radius, reference=(R[0], res.poses[0, :3, 3]),
+            self._wall = fit_cylinder(res.points[good], self.radius, reference=(R0, res.poses[0, :3, 3]),
                                       direction=res.poses[-1, :3, 3] - res.poses[0, :3, 3],
                                       huber=self.b.huber_m).cylinder
         except (ValueError, np.linalg.LinAlgError):
@@ -469,11 +501,7 @@ class StraightVO:
         self._fresh = []
         self._solved_until = last
         self._metric = True
-        sec.scale = "cylinder"
-        sec.windows += 1
-        self.windows.append(WindowReport(sec.number, int(first), int(last), len(fixed), len(uniq), len(obs),
-                                         float(res.time_s), int(res.iterations), float(res.rms_px),
-                                         float(res.cylinder_rms_m), float(rescale), float(after / before)))
+        return after
 
     def _close_section(self) -> None:
         """The final (partial) window; a fallback scale for a section with no window at all."""

@@ -229,6 +229,39 @@ def calibrate_from_corners(views, board=(9, 6), square: float = 0.025, model: st
     if model not in MODELS:
         raise PipemapError(f"unknown camera model {model!r} (expected one of {', '.join(MODELS)})", key="model")
     obj = board_points(board, square)
+    views = _checked_views(views, obj, board, model, fix)
+    cam = initial_camera(model, width, height, views, obj, initial, max_theta_deg)
+    cam = type(cam)(width, height, cam.params)  # the field-of-view limit applies to the result only
+    observed = np.stack(views)
+    used, poses, dropped, iterations = _initial_poses(cam, obj, observed, views, outlier_factor)
+
+    names = cam.param_names
+    free_all = np.array([n not in fix for n in names])
+    stage1 = free_all & np.array([n in _LINEAR[model] for n in names])
+    cam, poses, n = _refine_in_stages(cam, obj, observed[used], poses, stage1, free_all)
+    iterations += n
+    cam, poses, used, mask, n = _refine_without_outliers(cam, obj, observed, views, used, poses, free_all,
+                                                         outlier_factor, dropped)
+    iterations += n
+
+    try:
+        final = type(cam)(width, height, cam.params, max_theta_deg)
+    except PipemapError as exc:
+        raise PipemapError(f"calibration gave an invalid {model} camera ({exc.message}); add views that reach "
+                           "the edge of the image or fix the highest distortion term") from None
+    prob = CalibrationProblem(final, obj, observed[used], free_all, mask[used])
+    x = prob.pack(final.params, poses[:, :3], poses[:, 3:])
+    rejected = [(u, int(i)) for u in used for i in np.nonzero(~mask[u])[0]]
+    return CalibrationResult(
+        camera=final, rms_px=prob.rms(x),
+        per_view_rms=[float(e) for e in prob.view_rms(x)], poses=[(p[:3].copy(), p[3:].copy()) for p in poses],
+        iterations=int(iterations), used=used, dropped=sorted(dropped), board=tuple(board), square=float(square),
+        rejected=rejected, corners=[views[u].copy() for u in used])
+
+
+def _checked_views(views, obj: np.ndarray, board, model: str, fix) -> list[np.ndarray]:
+    """The views as (nx * ny, 2) arrays, refused when a view does not match the board, when there are too few
+    views, or when `fix` names a parameter `model` does not have."""
     views = [np.asarray(v, float).reshape(-1, 2) for v in views]
     for k, v in enumerate(views):
         if v.shape != (len(obj), 2):
@@ -237,34 +270,45 @@ def calibrate_from_corners(views, board=(9, 6), square: float = 0.025, model: st
         raise PipemapError(f"{len(views)} views with a detected board; calibration needs at least {MIN_VIEWS}")
     unknown = set(fix) - set(MODELS[model].param_names)
     if unknown:
-        raise PipemapError(f"cannot fix {', '.join(sorted(unknown))}: {model} has {' '.join(MODELS[model].param_names)}")
-    cam = initial_camera(model, width, height, views, obj, initial, max_theta_deg)
-    cam = type(cam)(width, height, cam.params)  # the field-of-view limit applies to the result only
-    observed = np.stack(views)
-    used = list(range(len(views)))
-    dropped: list[tuple[int, str]] = []
+        raise PipemapError(f"cannot fix {', '.join(sorted(unknown))}: "
+                           f"{model} has {' '.join(MODELS[model].param_names)}")
+    return views
 
+
+def _initial_poses(cam: CameraModel, obj, observed, views, outlier_factor: float):
+    """Each view's pose under the initial camera, views far off it dropped: used views, their poses, the
+    dropped ones (input index, reason), njev."""
+    used = list(range(len(views)))
     # Poses alone first, so that the outlier test sees each view at its best under the initial guess.
     poses, rms, iterations = _fit_poses(cam, obj, observed)
     keep = _inliers(rms, outlier_factor, floor_px=10.0)
-    dropped += [(used[k], f"reprojection error {rms[k]:.1f} px after initialisation") for k in np.nonzero(~keep)[0]]
+    dropped = [(used[k], f"reprojection error {rms[k]:.1f} px after initialisation") for k in np.nonzero(~keep)[0]]
     used, poses = [u for u, ok in zip(used, keep) if ok], poses[keep]
     _check_count(used, views)
+    return used, poses, dropped, iterations
 
-    names = cam.param_names
-    free_all = np.array([n not in fix for n in names])
-    stage1 = free_all & np.array([n in _LINEAR[model] for n in names])
-    cam, poses, _, _, n = _refine(cam, obj, observed[used], poses, stage1)
-    iterations += n
-    cam, poses, _, _, n = _refine(cam, obj, observed[used], poses, free_all)
+
+def _refine_in_stages(cam: CameraModel, obj, observed, poses, stage1, free_all):
+    """The `stage1` intrinsics and the poses, then every free intrinsic, then each view's pose again from the
+    refined camera where that fits it better: camera, poses, njev."""
+    cam, poses, _, _, iterations = _refine(cam, obj, observed, poses, stage1)
+    cam, poses, _, _, n = _refine(cam, obj, observed, poses, free_all)
     iterations += n
     # A pose initialised under the rough first camera can sit in the mirror minimum of a planar target
     # (the tilt ambiguity of near-frontal boards); start every view again from the refined camera.
-    fresh, fresh_rms, n = _fit_poses(cam, obj, observed[used])
-    old_rms = CalibrationProblem(cam, obj, observed[used], np.zeros(len(names), bool)).view_rms(
-        poses.ravel())
+    fresh, fresh_rms, n = _fit_poses(cam, obj, observed)
+    old_rms = CalibrationProblem(cam, obj, observed, np.zeros(len(cam.param_names), bool)).view_rms(poses.ravel())
     poses = np.where((fresh_rms < old_rms)[:, None], fresh, poses)
     iterations += n
+    return cam, poses, iterations
+
+
+def _refine_without_outliers(cam: CameraModel, obj, observed, views, used, poses, free_all, outlier_factor: float,
+                             dropped: list):
+    """Refine on the corners in use, after each solve leaving out the corners far off the fit (and the views left
+    with too few of them) or, when no corner is, the views far off it; at most six solves. The views dropped are
+    added to `dropped`. Returns camera, poses, used views, the mask of corners in use by input view, njev."""
+    iterations = 0
     mask = np.ones(observed.shape[:2], bool)  # corners in use, by input view
     for attempt in range(6):
         cam, poses, rms, errors, n = _refine(cam, obj, observed[used], poses, free_all, mask[used])
@@ -285,20 +329,7 @@ def calibrate_from_corners(views, board=(9, 6), square: float = 0.025, model: st
         dropped += [(used[k], f"reprojection error {rms[k]:.2f} px after calibration") for k in np.nonzero(~keep)[0]]
         used, poses = [u for u, ok in zip(used, keep) if ok], poses[keep]
         _check_count(used, views)
-
-    try:
-        final = type(cam)(width, height, cam.params, max_theta_deg)
-    except PipemapError as exc:
-        raise PipemapError(f"calibration gave an invalid {model} camera ({exc.message}); add views that reach "
-                           "the edge of the image or fix the highest distortion term") from None
-    prob = CalibrationProblem(final, obj, observed[used], free_all, mask[used])
-    x = prob.pack(final.params, poses[:, :3], poses[:, 3:])
-    rejected = [(u, int(i)) for u in used for i in np.nonzero(~mask[u])[0]]
-    return CalibrationResult(
-        camera=final, rms_px=prob.rms(x),
-        per_view_rms=[float(e) for e in prob.view_rms(x)], poses=[(p[:3].copy(), p[3:].copy()) for p in poses],
-        iterations=int(iterations), used=used, dropped=sorted(dropped), board=tuple(board), square=float(square),
-        rejected=rejected, corners=[views[u].copy() for u in used])
+    return cam, poses, used, mask, iterations
 
 
 def fit_view(camera: CameraModel, corners: np.ndarray, board=(9, 6), square: float = 0.025,
@@ -322,7 +353,8 @@ def fit_view(camera: CameraModel, corners: np.ndarray, board=(9, 6), square: flo
 def _fit_poses(cam: CameraModel, obj, observed, mask=None) -> tuple[np.ndarray, np.ndarray, int]:
     """Each view's pose from bearings under `cam`, then refined with the intrinsics held: (V, 6), rms, njev."""
     mask = np.ones(np.shape(observed)[:2], bool) if mask is None else mask
-    poses = np.array([np.concatenate(pose_from_bearings(obj[m], cam.unproject(v[m])[0])) for v, m in zip(observed, mask)])
+    poses = np.array([np.concatenate(pose_from_bearings(obj[m], cam.unproject(v[m])[0]))
+                      for v, m in zip(observed, mask)])
     prob = CalibrationProblem(cam, obj, observed, np.zeros(len(cam.params), bool), mask)
     sol = prob.solve(poses.ravel(), max_nfev=50)
     return sol.x.reshape(-1, 6), prob.view_rms(sol.x), int(sol.njev)
@@ -343,7 +375,8 @@ def _inliers(rms: np.ndarray, factor: float, floor_px: float) -> np.ndarray:
 
 def _check_count(used, views):
     if len(used) < MIN_VIEWS:
-        raise PipemapError(f"only {len(used)} of {len(views)} views fit the camera model; calibration needs {MIN_VIEWS}")
+        raise PipemapError(f"only {len(used)} of {len(views)} views fit the camera model; "
+                           f"calibration needs {MIN_VIEWS}")
 
 
 # -- images and files ------------------------------------------------------------------------------------

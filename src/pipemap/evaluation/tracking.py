@@ -16,6 +16,7 @@ It reads only files and ground truth; it does not import the estimators.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -82,8 +83,8 @@ def _sampson(E: np.ndarray, bi: np.ndarray, bj: np.ndarray) -> np.ndarray:
 
 def _read_tracks(path: Path) -> dict[str, np.ndarray]:
     data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    return {"track_id": data[:, 0].astype(np.int64), "keyframe": data[:, 1].astype(int), "index": data[:, 2].astype(int),
-            "uv": data[:, 3:5], "guided": data[:, 5] > 0}
+    return {"track_id": data[:, 0].astype(np.int64), "keyframe": data[:, 1].astype(int),
+            "index": data[:, 2].astype(int), "uv": data[:, 3:5], "guided": data[:, 5] > 0}
 
 
 def evaluate_tracking(out_dir: Path, dataset_path: Path, junction_margin_m: float | None = None, wall=None) -> dict:
@@ -100,53 +101,14 @@ def evaluate_tracking(out_dir: Path, dataset_path: Path, junction_margin_m: floa
     kf_index = np.rint(est.timestamps * fps).astype(int)
     R_true = truth.rotations[kf_index]
     c_true = truth.positions[kf_index]
-    # X_k = R X_{k-1} + t for estimate and truth.
-    R_est_rel = np.einsum("kji,kjl->kil", est.rotations[1:], est.rotations[:-1])
-    R_true_rel = np.einsum("kji,kjl->kil", R_true[1:], R_true[:-1])
-    rot_err = np.degrees(rotation_angle(np.einsum("kij,klj->kil", R_est_rel, R_true_rel)))
-    t_est = np.einsum("kji,kj->ki", est.rotations[1:], est.positions[:-1] - est.positions[1:])
-    t_true = np.einsum("kji,kj->ki", R_true[1:], c_true[:-1] - c_true[1:])
-    cosang = np.sum(t_est * t_true, axis=1) / (np.linalg.norm(t_est, axis=1) * np.linalg.norm(t_true, axis=1) + 1e-300)
-    dir_err = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
-    moving = np.linalg.norm(c_true[1:] - c_true[:-1], axis=1) > 1e-6
+    motion = _relative_motion_errors(est, R_true, c_true)
+    rot_err, dir_err, moving = motion.rotation_deg, motion.direction_deg, motion.moving
 
     tracks = _read_tracks(out_dir / "tracks.csv")
-    pixel = _pixel_angle(camera)
-    true_flags, epipolar_flags, reproj = [], [], []
-    for k in range(1, len(kf_index)):
-        a, b = tracks["keyframe"] == k - 1, tracks["keyframe"] == k
-        common, ia, ib = np.intersect1d(tracks["track_id"][a], tracks["track_id"][b], return_indices=True)
-        if common.size == 0:
-            continue
-        uv_a, uv_b = tracks["uv"][a][ia], tracks["uv"][b][ib]
-        bearings, _ = camera.unproject(uv_a)
-        world_dirs = bearings @ R_true[k - 1].T
-        if wall is None:
-            points, hit = raycast_network(network, c_true[k - 1], world_dirs)
-        else:
-            points, hit = wall(c_true[k - 1], world_dirs)
-        px, valid = camera.project((points - c_true[k]) @ R_true[k])
-        err = np.linalg.norm(px - uv_b, axis=1)
-        true_flags.append(hit & valid & (err < TRUE_MATCH_PX))
-        reproj.append(np.where(hit & valid, err, np.inf))
-        bearings_b, _ = camera.unproject(uv_b)
-        E = skew(t_true[k - 1] / max(np.linalg.norm(t_true[k - 1]), 1e-300)) @ R_true_rel[k - 1]
-        epipolar_flags.append(_sampson(E, bearings, bearings_b) < TRUE_MATCH_PX * pixel)
-    true_flags = np.concatenate(true_flags) if true_flags else np.zeros(0, bool)
-    epipolar_flags = np.concatenate(epipolar_flags) if epipolar_flags else np.zeros(0, bool)
-    reproj = np.concatenate(reproj) if reproj else np.zeros(0)
+    true_flags, epipolar_flags, reproj = _true_correspondences(tracks, camera, network, wall, R_true, c_true, motion)
 
-    # Track lengths in straight sections.
     margin = 2.5 * network.radius_m if junction_margin_m is None else junction_margin_m
-    if network.junctions:
-        centroids = np.array([j.centroid for j in network.junctions])
-        near = np.min(np.linalg.norm(c_true[:, None, :] - centroids[None], axis=2), axis=1) < margin
-    else:
-        near = np.zeros(len(kf_index), bool)
-    ids, counts = np.unique(tracks["track_id"], return_counts=True)
-    kf_of_obs_near = near[tracks["keyframe"]]
-    touched_junction = np.unique(tracks["track_id"][kf_of_obs_near])
-    straight = ~np.isin(ids, touched_junction) & (counts >= 2)
+    counts, straight = _straight_track_lengths(tracks, network, c_true, margin)
     gaps = np.diff(kf_index)
     # In metres travelled too: a slow start (the robot accelerating) spreads keyframes over more images.
     travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(truth.positions, axis=0), axis=1))])
@@ -172,3 +134,76 @@ def evaluate_tracking(out_dir: Path, dataset_path: Path, junction_margin_m: floa
         "lost_keyframes": run.get("lost_keyframes"),
         "frames_per_second": run.get("frames_per_second"),
     }
+
+
+@dataclass
+class _RelativeMotion:
+    """Consecutive keyframes' relative motion, X_k = R X_{k-1} + t, true and its errors."""
+
+    rotation_deg: np.ndarray  # (K-1,) angle of the estimated relative rotation against the true one
+    direction_deg: np.ndarray  # (K-1,) angle between the estimated and the true translation
+    moving: np.ndarray  # (K-1,) the camera moved between the two keyframes
+    R_true_rel: np.ndarray  # (K-1, 3, 3)
+    t_true: np.ndarray  # (K-1, 3)
+
+
+def _relative_motion_errors(est, R_true: np.ndarray, c_true: np.ndarray) -> _RelativeMotion:
+    # X_k = R X_{k-1} + t for estimate and truth.
+    R_est_rel = np.einsum("kji,kjl->kil", est.rotations[1:], est.rotations[:-1])
+    R_true_rel = np.einsum("kji,kjl->kil", R_true[1:], R_true[:-1])
+    rot_err = np.degrees(rotation_angle(np.einsum("kij,klj->kil", R_est_rel, R_true_rel)))
+    t_est = np.einsum("kji,kj->ki", est.rotations[1:], est.positions[:-1] - est.positions[1:])
+    t_true = np.einsum("kji,kj->ki", R_true[1:], c_true[:-1] - c_true[1:])
+    cosang = np.sum(t_est * t_true, axis=1) / (np.linalg.norm(t_est, axis=1) * np.linalg.norm(t_true, axis=1) + 1e-300)
+    dir_err = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
+    moving = np.linalg.norm(c_true[1:] - c_true[:-1], axis=1) > 1e-6
+    return _RelativeMotion(rot_err, dir_err, moving, R_true_rel, t_true)
+
+
+def _true_correspondences(tracks: dict[str, np.ndarray], camera, network: PipeNetwork, wall, R_true: np.ndarray,
+                          c_true: np.ndarray, motion: _RelativeMotion) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each track observation continued in the next keyframe: whether it is true (ray-cast into the true pipe,
+    `wall` or else the network's cylinders, from the true pose and re-projected within TRUE_MATCH_PX), whether it
+    fits the true epipolar geometry, and its reprojection error (inf where the ray-cast missed)."""
+    pixel = _pixel_angle(camera)
+    true_flags, epipolar_flags, reproj = [], [], []
+    for k in range(1, len(c_true)):
+        a, b = tracks["keyframe"] == k - 1, tracks["keyframe"] == k
+        common, ia, ib = np.intersect1d(tracks["track_id"][a], tracks["track_id"][b], return_indices=True)
+        if common.size == 0:
+            continue
+        uv_a, uv_b = tracks["uv"][a][ia], tracks["uv"][b][ib]
+        bearings, _ = camera.unproject(uv_a)
+        world_dirs = bearings @ R_true[k - 1].T
+        if wall is None:
+            points, hit = raycast_network(network, c_true[k - 1], world_dirs)
+        else:
+            points, hit = wall(c_true[k - 1], world_dirs)
+        px, valid = camera.project((points - c_true[k]) @ R_true[k])
+        err = np.linalg.norm(px - uv_b, axis=1)
+        true_flags.append(hit & valid & (err < TRUE_MATCH_PX))
+        reproj.append(np.where(hit & valid, err, np.inf))
+        bearings_b, _ = camera.unproject(uv_b)
+        t = motion.t_true[k - 1]
+        E = skew(t / max(np.linalg.norm(t), 1e-300)) @ motion.R_true_rel[k - 1]
+        epipolar_flags.append(_sampson(E, bearings, bearings_b) < TRUE_MATCH_PX * pixel)
+    true_flags = np.concatenate(true_flags) if true_flags else np.zeros(0, bool)
+    epipolar_flags = np.concatenate(epipolar_flags) if epipolar_flags else np.zeros(0, bool)
+    reproj = np.concatenate(reproj) if reproj else np.zeros(0)
+    return true_flags, epipolar_flags, reproj
+
+
+def _straight_track_lengths(tracks: dict[str, np.ndarray], network: PipeNetwork, c_true: np.ndarray,
+                            margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each track's length in keyframes, and which tracks stay in straight sections (every keyframe seeing them
+    at least `margin` from every junction centroid) and are seen at least twice."""
+    if network.junctions:
+        centroids = np.array([j.centroid for j in network.junctions])
+        near = np.min(np.linalg.norm(c_true[:, None, :] - centroids[None], axis=2), axis=1) < margin
+    else:
+        near = np.zeros(len(c_true), bool)
+    ids, counts = np.unique(tracks["track_id"], return_counts=True)
+    kf_of_obs_near = near[tracks["keyframe"]]
+    touched_junction = np.unique(tracks["track_id"][kf_of_obs_near])
+    straight = ~np.isin(ids, touched_junction) & (counts >= 2)
+    return counts, straight

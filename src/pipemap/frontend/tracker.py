@@ -13,7 +13,7 @@ fisheye geometry: the paper's "ZNCC in the original fisheye imagery" means not u
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterable, Iterator
 
 import cv2
@@ -63,6 +63,19 @@ class _Match:
     frame_idx: np.ndarray
     median_flow: float
     tracked_fraction: float
+
+
+@dataclass
+class _Guided:
+    """Keyframe features the descriptors did not match, found in the frame by epipolar-guided ZNCC."""
+
+    kf_idx: np.ndarray  # their rows in the keyframe
+    keypoints: np.ndarray  # where they are in the frame
+    bearings: np.ndarray
+    descriptors: np.ndarray
+
+    def take(self, rows) -> "_Guided":
+        return _Guided(self.kf_idx[rows], self.keypoints[rows], self.bearings[rows], self.descriptors[rows])
 
 
 class FeatureTracker:
@@ -145,7 +158,8 @@ class FeatureTracker:
                 out.append(self._start(features))
             return out
         self._lost = 0
-        if needs_keyframe(match.median_flow, match.tracked_fraction, self.s.keyframe_min_flow_px, self.s.keyframe_min_tracked):
+        if needs_keyframe(match.median_flow, match.tracked_fraction, self.s.keyframe_min_flow_px,
+                          self.s.keyframe_min_tracked):
             out.append(self._promote(match))
         else:
             self._candidate = match
@@ -179,6 +193,33 @@ class FeatureTracker:
         prev = self.keyframes[-1]
         # The RANSAC pose bounds the epipolar regions well enough; one refinement at the end uses every match.
         R, t, E = m.pose.R, m.pose.t, m.pose.E
+        matched_pts, matched_bear = self._relocate_matches(kf, f, m, E)
+        guided = self._guided_matches(kf, f, m, matched_pts, R, t, E)
+        if s.anchor_refine:
+            ok, carried, matched_pts, matched_bear, guided = self._anchor_matches(kf, f, m, matched_pts,
+                                                                                  matched_bear, guided)
+        # All matches together pin the pose down better than the descriptor matches alone.
+        all_i = np.concatenate([kf.bearings[m.kf_idx], kf.bearings[guided.kf_idx]])
+        all_j = np.concatenate([matched_bear, guided.bearings])
+        R, t = refine_pose(R, t, all_i, all_j, self.threshold)
+        # Matches the refined pose (or the anchor match) rejects do not continue their track: a
+        # descriptor match's corner starts a new one, a guided match (no corner there) is dropped.
+        consistent = sampson_angle(essential_from_pose(R, t), all_i, all_j) < s.track_threshold_factor * self.threshold
+        if s.anchor_refine:  # a track that no longer matches its first patch has drifted off its point
+            consistent &= ok
+        n_desc = len(m.kf_idx)
+        d_ok, g_ok = consistent[:n_desc], consistent[n_desc:]
+        kf_idx, frame_idx = m.kf_idx[d_ok], m.frame_idx[d_ok]
+        matched_pts, matched_bear = matched_pts[d_ok], matched_bear[d_ok]
+        guided = guided.take(g_ok)
+        kept = carried.take(np.concatenate([d_ok, g_ok])) if s.anchor_refine else None
+        return self._emit_continued(f, prev, R, t, kf_idx, frame_idx, matched_pts, matched_bear, guided, kept)
+
+    def _relocate_matches(self, kf: _Features, f: _Features, m: _Match, E: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's keypoints and bearings of the descriptor matches, re-located by ZNCC when
+        `refine_matches_px` says so."""
+        s = self.s
         matched_pts, matched_bear = f.keypoints[m.frame_idx], f.bearings[m.frame_idx]
         if s.refine_matches_px > 0:
             # Two independent corner detections disagree by ~0.5 px; correlating the keyframe's
@@ -191,7 +232,13 @@ class FeatureTracker:
                 bear, _ = self.camera.unproject(pos[ok])
                 matched_bear = matched_bear.copy()
                 matched_bear[ok] = bear
-        # Guided ZNCC for the keyframe features the descriptors did not match.
+        return matched_pts, matched_bear
+
+    def _guided_matches(self, kf: _Features, f: _Features, m: _Match, matched_pts: np.ndarray, R: np.ndarray,
+                        t: np.ndarray, E: np.ndarray) -> _Guided:
+        """Guided ZNCC for the keyframe features the descriptors did not match: each searched near where its
+        matched neighbours moved, kept in front of both cameras and where a descriptor can be taken."""
+        s = self.s
         unmatched = np.setdiff1d(np.arange(len(kf.keypoints)), m.kf_idx)
         predicted = predict_positions(kf.keypoints[unmatched], kf.keypoints[m.kf_idx], matched_pts,
                                       s.guided_neighbours)
@@ -205,61 +252,60 @@ class FeatureTracker:
         keep = g_ok.reshape(-1) & (lam_i > 0) & (lam_j > 0)
         g_kf, g_pos, g_bear = g_kf[keep], g_pos[keep], g_bear[keep]
         g_desc, usable = describe(f.smoothed, g_pos, s.template_size, s.template_window)
-        g_kf, g_pos, g_bear, g_desc = g_kf[usable], g_pos[usable], g_bear[usable], g_desc[usable]
-        if s.anchor_refine:
-            rows = np.concatenate([m.kf_idx, g_kf])
-            anchors = kf.anchors.take(rows)
-            found = np.concatenate([matched_pts, g_pos])
-            if s.anchor_bend_neighbours:
-                src = kf.keypoints[rows]
-                step_J, step_H, _ = local_quadratic_motion(src, found, src, s.anchor_bend_neighbours)
-                anchors = anchors.carry(step_J, step_H)
-            ok, pos, carried = refine_to_anchors(f.image, anchors, found, s.zncc_patch,
-                                                 s.anchor_iterations, s.anchor_max_shift_px, s.anchor_min_zncc,
-                                                 s.anchor_max_stretch)
-            if ok.any():
-                bear = np.concatenate([matched_bear, g_bear])
-                new_bear, _ = self.camera.unproject(pos[ok])
-                bear[ok] = new_bear.reshape(-1, 3)
-                n_desc = len(m.kf_idx)
-                matched_pts, g_pos = pos[:n_desc], pos[n_desc:]
-                matched_bear, g_bear = bear[:n_desc], bear[n_desc:]
-        # All matches together pin the pose down better than the descriptor matches alone.
-        all_i = np.concatenate([kf.bearings[m.kf_idx], kf.bearings[g_kf]])
-        all_j = np.concatenate([matched_bear, g_bear])
-        R, t = refine_pose(R, t, all_i, all_j, self.threshold)
-        # Matches the refined pose (or the anchor match) rejects do not continue their track: a
-        # descriptor match's corner starts a new one, a guided match (no corner there) is dropped.
-        consistent = sampson_angle(essential_from_pose(R, t), all_i, all_j) < s.track_threshold_factor * self.threshold
-        if s.anchor_refine:  # a track that no longer matches its first patch has drifted off its point
-            consistent &= ok
-        n_desc = len(m.kf_idx)
-        d_ok, g_ok = consistent[:n_desc], consistent[n_desc:]
-        kf_idx, frame_idx, matched_pts, matched_bear = m.kf_idx[d_ok], m.frame_idx[d_ok], matched_pts[d_ok], matched_bear[d_ok]
-        g_kf, g_pos, g_bear, g_desc = g_kf[g_ok], g_pos[g_ok], g_bear[g_ok], g_desc[g_ok]
+        return _Guided(g_kf, g_pos, g_bear, g_desc).take(usable)
+
+    def _anchor_matches(self, kf: _Features, f: _Features, m: _Match, matched_pts: np.ndarray,
+                        matched_bear: np.ndarray, guided: _Guided):
+        """Every match, descriptor and guided, re-located against its track's first patch:
+        (matched by the anchor, the anchors carried into the frame, matched_pts, matched_bear, guided)."""
+        s = self.s
+        rows = np.concatenate([m.kf_idx, guided.kf_idx])
+        anchors = kf.anchors.take(rows)
+        found = np.concatenate([matched_pts, guided.keypoints])
+        if s.anchor_bend_neighbours:
+            src = kf.keypoints[rows]
+            step_J, step_H, _ = local_quadratic_motion(src, found, src, s.anchor_bend_neighbours)
+            anchors = anchors.carry(step_J, step_H)
+        ok, pos, carried = refine_to_anchors(f.image, anchors, found, s.zncc_patch,
+                                             s.anchor_iterations, s.anchor_max_shift_px, s.anchor_min_zncc,
+                                             s.anchor_max_stretch)
+        if ok.any():
+            bear = np.concatenate([matched_bear, guided.bearings])
+            new_bear, _ = self.camera.unproject(pos[ok])
+            bear[ok] = new_bear.reshape(-1, 3)
+            n_desc = len(m.kf_idx)
+            matched_pts, matched_bear = pos[:n_desc], bear[:n_desc]
+            guided = replace(guided, keypoints=pos[n_desc:], bearings=bear[n_desc:])
+        return ok, carried, matched_pts, matched_bear, guided
+
+    def _emit_continued(self, f: _Features, prev: Keyframe, R: np.ndarray, t: np.ndarray, kf_idx: np.ndarray,
+                        frame_idx: np.ndarray, matched_pts: np.ndarray, matched_bear: np.ndarray, guided: _Guided,
+                        kept: Anchors | None) -> Keyframe:
+        """The frame as the next keyframe, continuing `prev`'s tracks. `kept`: the anchors of the matches kept,
+        descriptor ones then guided (None without anchor refinement)."""
+        s = self.s
         # Harris corners of the frame: matched ones first, then unmatched ones not duplicating a guided match.
         rest = np.setdiff1d(np.arange(len(f.keypoints)), frame_idx)
-        if len(g_pos) and len(rest) and s.duplicate_px > 0:
-            d, _ = cKDTree(g_pos).query(f.keypoints[rest], k=1)
+        if len(guided.keypoints) and len(rest) and s.duplicate_px > 0:
+            d, _ = cKDTree(guided.keypoints).query(f.keypoints[rest], k=1)
             rest = rest[d > s.duplicate_px]
-        keypoints = np.concatenate([matched_pts, f.keypoints[rest], g_pos])
-        bearings = np.concatenate([matched_bear, f.bearings[rest], g_bear])
-        descriptors = np.concatenate([f.descriptors[frame_idx], f.descriptors[rest], g_desc])
+        keypoints = np.concatenate([matched_pts, f.keypoints[rest], guided.keypoints])
+        bearings = np.concatenate([matched_bear, f.bearings[rest], guided.bearings])
+        descriptors = np.concatenate([f.descriptors[frame_idx], f.descriptors[rest], guided.descriptors])
         n_desc, n_rest = len(frame_idx), len(rest)
-        track_ids = np.concatenate([prev.track_ids[kf_idx], self.ids.new(n_rest), prev.track_ids[g_kf]])
+        track_ids = np.concatenate([prev.track_ids[kf_idx], self.ids.new(n_rest), prev.track_ids[guided.kf_idx]])
         inliers = np.ones(len(keypoints), bool)
         inliers[n_desc:n_desc + n_rest] = False
-        guided = np.zeros(len(keypoints), bool)
-        guided[n_desc + n_rest:] = True
+        is_guided = np.zeros(len(keypoints), bool)
+        is_guided[n_desc + n_rest:] = True
         anchors = None
-        if s.anchor_refine:  # in the order of the keypoints: continued descriptor matches, new corners, guided
-            kept = carried.take(np.concatenate([d_ok, g_ok]))
+        if kept is not None:  # in the order of the keypoints: continued descriptor matches, new corners, guided
             anchors = Anchors.concatenate([kept.take(slice(0, n_desc)),
                                            anchor_templates(f.image, f.keypoints[rest], s.zncc_patch),
                                            kept.take(slice(n_desc, None))])
         features = _Features(f.index, f.timestamp, f.image, f.smoothed, keypoints, bearings, descriptors, anchors)
-        keyframe = Keyframe(len(self.keyframes), f.index, f.timestamp, keypoints, bearings, track_ids, inliers, guided,
-                            R, t, True)
+        keyframe = Keyframe(len(self.keyframes), f.index, f.timestamp, keypoints, bearings, track_ids, inliers,
+                            is_guided, R, t, True)
         return self._emit(features, keyframe)
 
 

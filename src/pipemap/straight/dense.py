@@ -89,7 +89,8 @@ def estimate_shifts(images: Iterable[np.ndarray], method: str, dense: DenseSetti
 
     on_frame(k, image, shift) after each image; shift is the pair (k-1, k)'s, zeros for k = 0."""
     if method not in DENSE_METHODS:
-        raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})", key="method")
+        raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})",
+                           key="method")
     fraction = dense.full_search_reference_fraction if method == "dense-full-search" else None
     shifts, scores = [], []
     ref = None
@@ -190,9 +191,63 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
     settings = settings or Settings()
     dense = settings.dense
     if method not in DENSE_METHODS:
-        raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})", key="method")
+        raise PipemapError(f"unknown dense method {method!r} (expected one of {', '.join(DENSE_METHODS)})",
+                           key="method")
     dataset = load_dataset(dataset_path)
     Rectifier(dataset.camera, dense.scale or QUARTER, dataset.yaml_path)  # a fisheye or a bad scale: refused at once
+    view = _rectified_view(dataset, settings)
+    rect = view.rect
+    total = len(dataset)
+    indices: list[int] = []
+    shown: list[np.ndarray] = []
+    stats = FrameStats.for_settings(settings)
+    feed = _RegisteredFrames(view, Stitcher(rect.valid, dense.stitch_min_shift_px), stats, shown, progress, total)
+
+    start = time.perf_counter()
+    with result_folder(Path(out_dir)) as tmp:
+        corrected = dense.gain_correct and dataset.has_gain_mask
+        log = FootageLog()
+        frames = _frames(dataset, rect, indices, dense.gain_correct, None if corrected else dense.light_sigma_px,
+                         shown, log)
+        shifts, scores = estimate_shifts(frames, method, dense, view.rows, feed)
+        t_reg = time.perf_counter() - start
+        if len(indices) == 0:
+            raise PipemapError("no images in the dataset", dataset.root)
+        require_mappable(stats, len(indices), total, len(log.repeated), settings, dataset.root)
+        pos = integrate(shifts, view.zeta if view.row_zeta is None else np.array(feed.pair_zeta))
+        idx = np.array(indices, int)
+        traj = Trajectory(dataset.times()[idx], pos, np.tile(rect.rotation, (len(idx), 1, 1)))  # camera -> virtual axes
+        t1 = time.perf_counter()
+        _write_trajectory_and_frames(tmp, method, traj, dataset, idx, log)
+        _write_stitched(tmp / "unrolled", feed.stitch, rect, view.zeta, method)
+        quality = straight_verdict(method, idx, traj.timestamps, pos[:, 0], view.mount, dataset.radius_m,
+                                   settings.quality, scale_source=view.scale["source"])
+        seconds = {"mount": view.mount_seconds, "registration": t_reg, "write": time.perf_counter() - t1}
+        seconds["total"] = time.perf_counter() - start
+        run = _run_record(method, dataset, settings, view, idx, pos, log, t_reg, quality, seconds)
+        atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
+    return DenseResult(method, idx, shifts, scores, view.zeta, view.scale["text"], traj, rect.size, view.rows,
+                       seconds, view.mount, quality)
+
+
+@dataclass
+class _RectifiedView:
+    """The virtual camera the frames are registered in: the mount it is turned by, and its scale."""
+
+    mount: Mount | None
+    mount_seconds: float
+    turn: np.ndarray | None  # the rotation the frames are turned by, None for the report's square camera
+    reduction: float
+    rect: Rectifier
+    rows: tuple[int, int]  # the registered band
+    zeta: float
+    scale: dict  # where zeta came from (_scale)
+    row_zeta: np.ndarray | None
+
+
+def _rectified_view(dataset: Dataset, settings: Settings) -> _RectifiedView:
+    """The mount estimate (unless dense.mount says the camera is square), the rectifier it gives, and the scale."""
+    dense = settings.dense
     t_mount = time.perf_counter()
     mount = None
     if dense.mount == "estimate":
@@ -203,107 +258,105 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
     reduction = dense.scale or reduction_for_wall(dataset.camera, _wall_distance(dense, mount, dataset.radius_m),
                                                   dense.wall_mm_per_px)
     rect = Rectifier(dataset.camera, reduction, dataset.yaml_path, turn, dense.rectify_max_angle_deg)
-    w, h = rect.size
-    rows = band_rows(h, dense.band_fraction)
+    rows = band_rows(rect.size[1], dense.band_fraction)
     zeta, scale, row_zeta = _scale(dense, rect, dataset, mount, rows)
-    source = scale["text"]
-    total = len(dataset)
-    stitch = Stitcher(rect.valid, dense.stitch_min_shift_px)
-    indices: list[int] = []
-    running = {"c": np.zeros(2), "w": None}
-    shown: list[np.ndarray] = []
-    pair_zeta: list[float] = []
-    stats = FrameStats.for_settings(settings)
+    return _RectifiedView(mount, t_mount, turn, reduction, rect, rows, zeta, scale, row_zeta)
 
-    def on_frame(k: int, img: np.ndarray, t: np.ndarray) -> None:
-        stats.add(img)
-        running["c"] = running["c"] + t
+
+class _RegisteredFrames:
+    """Called with each registered frame: its statistics, its pair's zeta (the rows' own zetas weighted by the
+    texture of the pair's first frame), its tile of the stitched image, and the progress."""
+
+    def __init__(self, view: _RectifiedView, stitch: Stitcher, stats: FrameStats, shown: list[np.ndarray],
+                 progress: Callable[[int, int], None] | None, total: int):
+        self.view, self.stitch, self.stats, self.shown = view, stitch, stats, shown
+        self.progress, self.total = progress, total
+        self.content = np.zeros(2)  # the content's displacement from the first frame
+        self.weights: np.ndarray | None = None
+        self.pair_zeta: list[float] = []
+
+    def __call__(self, k: int, img: np.ndarray, t: np.ndarray) -> None:
+        self.stats.add(img)
+        self.content = self.content + t
+        row_zeta = self.view.row_zeta
         if row_zeta is not None:
             if k > 0:
-                w = running["w"]
-                pair_zeta.append(float(w @ row_zeta / w.sum()) if w.sum() > 0 else zeta)
-            running["w"] = texture_weights(img, rows)
-        stitch.add(-running["c"], shown[0])
-        if progress is not None:
-            progress(k + 1, total)
+                w = self.weights
+                self.pair_zeta.append(float(w @ row_zeta / w.sum()) if w.sum() > 0 else self.view.zeta)
+            self.weights = texture_weights(img, self.view.rows)
+        self.stitch.add(-self.content, self.shown[0])
+        if self.progress is not None:
+            self.progress(k + 1, self.total)
 
-    start = time.perf_counter()
-    with result_folder(Path(out_dir)) as tmp:
-        corrected = dense.gain_correct and dataset.has_gain_mask
-        log = FootageLog()
-        frames = _frames(dataset, rect, indices, dense.gain_correct, None if corrected else dense.light_sigma_px,
-                         shown, log)
-        shifts, scores = estimate_shifts(frames, method, dense, rows, on_frame)
-        t_reg = time.perf_counter() - start
-        if len(indices) == 0:
-            raise PipemapError("no images in the dataset", dataset.root)
-        require_mappable(stats, len(indices), total, len(log.repeated), settings, dataset.root)
-        pos = integrate(shifts, zeta if row_zeta is None else np.array(pair_zeta))
-        idx = np.array(indices, int)
-        traj = Trajectory(dataset.times()[idx], pos, np.tile(rect.rotation, (len(idx), 1, 1)))  # camera -> virtual axes
-        t1 = time.perf_counter()
-        write_tum(tmp / "trajectory.tum", traj, header=(
-            f"pipemap dense VO ({method}): every frame's T_wc in metres; world = the first frame's camera turned "
-            "square to the wall (x along the pipe, z towards the viewed wall)"))
-        labels = {int(i): "straight" for i in idx}
-        labels.update({i: "repeated" for i in log.repeated})
-        write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
-        (tmp / "unrolled").mkdir()
-        canvas, origin = stitch.render()
-        atomic_write_bytes(tmp / "unrolled" / "dense_000.png", to_png(canvas))
-        cx, cy = rect.K[0, 2], rect.K[1, 2]
-        sidecar = {
-            "image": "dense_000.png",
-            "kind": "dense-stitched",
-            "method": method,
-            "metres_per_pixel": 1.0 / zeta,
-            "pixels_per_metre": zeta,
-            "axis": {"origin": [0.0, 0.0, 0.0], "direction": [1.0, 0.0, 0.0]},
-            "column_0_along_m": float((origin[0] - cx) / zeta),
-            "row_0_across_m": float((origin[1] - cy) / zeta),
-            "note": ("perspective mosaic of the rectified frames (report section 6), not r*phi: columns run along the "
-                     "axis (world x, metres = column * metres_per_pixel + column_0_along_m at the first frame's "
-                     "principal row), rows across the pipe; mean of overlapping frames"),
-            "frames_pasted": len(stitch.tiles),
-        }
-        atomic_write_text(tmp / "unrolled" / "dense_000.json", json.dumps(sidecar, indent=2) + "\n")
-        from pipemap import __version__
 
-        quality = straight_verdict(method, idx, traj.timestamps, pos[:, 0], mount, dataset.radius_m, settings.quality,
-                                   scale_source=scale["source"])
-        seconds = {"mount": t_mount, "registration": t_reg, "write": time.perf_counter() - t1}
-        seconds["total"] = time.perf_counter() - start
-        run = {
-            "version": __version__,
-            "stage": "dense",
-            "method": method,
-            "input": str(dataset.root),
-            "settings": settings.to_dict(),
-            "pixels_per_metre": zeta,
-            "gain_corrected": bool(dense.gain_correct and dataset.has_gain_mask),
-            "pixels_per_metre_source": source,
-            "scale_source": scale["source"],
-            "scale": scale,
-            "mount": None if mount is None else mount.to_dict(),
-            "rectified_by": ("the estimated mount" if turn is not None else
-                             "none: the camera taken as square to the wall with image x along the pipe" +
-                             ("" if mount is None else " (the images did not determine its mount)")),
-            "reduction": reduction,
-            "rectified_size": [w, h],
-            "rectified_intrinsics": rect.K.tolist(),
-            "rectified_rotation": rect.rotation.tolist(),
-            "registered_rows": list(rows),
-            "pipe_radius_m": dataset.radius_m,
-            "frames": len(idx),
-            "footage": log.to_dict(),
-            "keyframes": len(idx),
-            "frames_per_second": len(idx) / max(t_reg, 1e-9),
-            "distance_along_pipe_m": float(pos[-1, 0] - pos[0, 0]),
-            "quality": quality.to_dict(),
-            "seconds": {k: round(v, 3) for k, v in seconds.items()},
-        }
-        atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
-    return DenseResult(method, idx, shifts, scores, zeta, source, traj, (w, h), rows, seconds, mount, quality)
+def _write_trajectory_and_frames(tmp: Path, method: str, traj: Trajectory, dataset: Dataset, idx: np.ndarray,
+                                 log: FootageLog) -> None:
+    write_tum(tmp / "trajectory.tum", traj, header=(
+        f"pipemap dense VO ({method}): every frame's T_wc in metres; world = the first frame's camera turned "
+        "square to the wall (x along the pipe, z towards the viewed wall)"))
+    labels = {int(i): "straight" for i in idx}
+    labels.update({i: "repeated" for i in log.repeated})
+    write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
+
+
+def _write_stitched(folder: Path, stitch: Stitcher, rect: Rectifier, zeta: float, method: str) -> None:
+    """The stitched wall image, dense_000.png, and its sidecar dense_000.json in a new `folder`."""
+    folder.mkdir()
+    canvas, origin = stitch.render()
+    atomic_write_bytes(folder / "dense_000.png", to_png(canvas))
+    cx, cy = rect.K[0, 2], rect.K[1, 2]
+    sidecar = {
+        "image": "dense_000.png",
+        "kind": "dense-stitched",
+        "method": method,
+        "metres_per_pixel": 1.0 / zeta,
+        "pixels_per_metre": zeta,
+        "axis": {"origin": [0.0, 0.0, 0.0], "direction": [1.0, 0.0, 0.0]},
+        "column_0_along_m": float((origin[0] - cx) / zeta),
+        "row_0_across_m": float((origin[1] - cy) / zeta),
+        "note": ("perspective mosaic of the rectified frames (report section 6), not r*phi: columns run along the "
+                 "axis (world x, metres = column * metres_per_pixel + column_0_along_m at the first frame's "
+                 "principal row), rows across the pipe; mean of overlapping frames"),
+        "frames_pasted": len(stitch.tiles),
+    }
+    atomic_write_text(folder / "dense_000.json", json.dumps(sidecar, indent=2) + "\n")
+
+
+def _run_record(method: str, dataset: Dataset, settings: Settings, view: _RectifiedView, idx: np.ndarray,
+                pos: np.ndarray, log: FootageLog, t_reg: float, quality: RunVerdict, seconds: dict) -> dict:
+    """run.json of a dense run."""
+    from pipemap import __version__
+
+    dense, mount, rect = settings.dense, view.mount, view.rect
+    return {
+        "version": __version__,
+        "stage": "dense",
+        "method": method,
+        "input": str(dataset.root),
+        "settings": settings.to_dict(),
+        "pixels_per_metre": view.zeta,
+        "gain_corrected": bool(dense.gain_correct and dataset.has_gain_mask),
+        "pixels_per_metre_source": view.scale["text"],
+        "scale_source": view.scale["source"],
+        "scale": view.scale,
+        "mount": None if mount is None else mount.to_dict(),
+        "rectified_by": ("the estimated mount" if view.turn is not None else
+                         "none: the camera taken as square to the wall with image x along the pipe" +
+                         ("" if mount is None else " (the images did not determine its mount)")),
+        "reduction": view.reduction,
+        "rectified_size": list(rect.size),
+        "rectified_intrinsics": rect.K.tolist(),
+        "rectified_rotation": rect.rotation.tolist(),
+        "registered_rows": list(view.rows),
+        "pipe_radius_m": dataset.radius_m,
+        "frames": len(idx),
+        "footage": log.to_dict(),
+        "keyframes": len(idx),
+        "frames_per_second": len(idx) / max(t_reg, 1e-9),
+        "distance_along_pipe_m": float(pos[-1, 0] - pos[0, 0]),
+        "quality": quality.to_dict(),
+        "seconds": {k: round(v, 3) for k, v in seconds.items()},
+    }
 
 
 def _wall_distance(dense: DenseSettings, mount: Mount | None, radius: float) -> float:
@@ -341,6 +394,7 @@ def _scale(dense: DenseSettings, rect: Rectifier, dataset: Dataset, mount: Mount
         text = "camera assumed on the pipe axis"
     row_zeta = row_pixels_per_metre(rect.focal_px, rect.K[1, 2], dataset.radius_m, offset, rows, side)
     zeta = float(np.mean(row_zeta))
-    return zeta, {"source": source, "offset_m": offset, "side_m": side, "rows": "weighted by their texture, pair by pair",
+    return zeta, {"source": source, "offset_m": offset, "side_m": side,
+                  "rows": "weighted by their texture, pair by pair",
                   "text": f"{text} (rectified focal {rect.focal_px:.3f} px, radius {dataset.radius_m} m, rows "
                           f"{rows[0]}..{rows[1]} weighted by their texture)"}, row_zeta

@@ -75,7 +75,8 @@ def _require_pinhole(dataset: Dataset) -> None:
     if not isinstance(dataset.camera, PinholeCamera):
         raise PipemapError(
             f"sparse-cylinder VO needs a perspective (pinhole) camera looking at the wall; the {dataset.camera.model} "
-            "camera is a fisheye model, which the 2010 report's sparse method does not handle (use the fisheye pipeline)",
+            "camera is a fisheye model, which the 2010 report's sparse method does not handle "
+            "(use the fisheye pipeline)",
             dataset.yaml_path, "camera.model")
 
 
@@ -92,40 +93,11 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
     total = len(dataset)
     start = time.perf_counter()
     with result_folder(Path(out_dir)) as tmp:
-        selector = KeyframeSelector(camera, sp, settings.seed, not (sp.gain_correct and dataset.has_gain_mask))
-        odometry = SparseOdometry(camera, radius, sp, settings.seed)
-        t_features = t_motion = 0.0
-        n = 0
-        log, read = FootageLog(), []
-        stats = FrameStats.for_settings(settings)
-        for frame in dataset.frames(gain_correct=sp.gain_correct, log=log):
-            if frame.repeated:  # a stalled link's copy: nothing new, and no keyframe can come of it
-                continue
-            read.append(frame.index)
-            stats.add(frame.image)
-            t0 = time.perf_counter()
-            links = list(selector.push(frame.index, frame.image))
-            t1 = time.perf_counter()
-            for link in links:
-                odometry.add(link)
-            t_features += t1 - t0
-            t_motion += time.perf_counter() - t1
-            n += 1
-            if progress is not None:
-                progress(n, total)
-        if n == 0:
-            raise PipemapError("no images in the dataset", dataset.root)
-        t1 = time.perf_counter()
-        for link in selector.finish():
-            odometry.add(link)
-        if not odometry.keyframes:
-            odometry.start(selector.first)
-        odometry.finish()
-        mount = Mount.from_odometry(odometry, n)
-        require_wall_view(dataset, settings, mount)
-        t_motion += time.perf_counter() - t1
+        tracked = _track_keyframes(dataset, settings, progress)
+        mount = _finish_odometry(tracked, dataset, settings)
+        odometry, log = tracked.odometry, tracked.log
         idx, R, C = odometry.poses()
-        require_mappable(stats, len(idx), total, len(log.repeated), settings, dataset.root)
+        require_mappable(tracked.stats, len(idx), total, len(log.repeated), settings, dataset.root)
         Rw, Cw = to_first_camera(R, C)
         traj = Trajectory(dataset.times()[idx], Cw, Rw)
 
@@ -136,60 +108,134 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         t3 = time.perf_counter()
         axis_origin = (np.array([0.0, 0.0, C[0, 2]]) - C[0]) @ R[0]  # the axis point beside the first camera
         axis_dir = E_H @ R[0]
-        write_tum(tmp / "trajectory.tum", traj, header=(
-            "pipemap sparse VO (sparse-cylinder): every keyframe's T_wc in metres; world = first keyframe's camera "
-            f"frame; pipe axis through {_fmt(axis_origin)} along {_fmt(axis_dir)}"))
-        labels = {i: "straight" for i in read}
-        labels.update({i: "repeated" for i in log.repeated})
-        write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
-        (tmp / "unrolled").mkdir()
-        atomic_write_bytes(tmp / "unrolled" / "sparse_000.png", to_png(wall.image))
-        atomic_write_text(tmp / "unrolled" / "sparse_000.json",
-                          json.dumps(_sidecar(wall, radius, axis_origin, axis_dir, len(idx)), indent=2) + "\n")
-        from pipemap import __version__
-
-        seconds = {"features": t_features, "motion": t_motion, "unroll": t_unroll,
+        _write_keyframes_and_wall(tmp, dataset, tracked, traj, idx, wall, axis_origin, axis_dir)
+        seconds = {"features": tracked.t_features, "motion": tracked.t_motion, "unroll": t_unroll,
                    "write": time.perf_counter() - t3}
         seconds["total"] = time.perf_counter() - start
         off = odometry.offset
         offset = np.asarray(C[0, :2], float)
-        h = C[:, 2]
-        quality = straight_verdict(SPARSE_METHOD, idx, traj.timestamps, h, mount, radius, settings.quality,
+        quality = straight_verdict(SPARSE_METHOD, idx, traj.timestamps, C[:, 2], mount, radius, settings.quality,
                                    batch_rms_px=None if off is None else off.rms_px,
                                    unconstrained=odometry.unconstrained)
-        run = {
-            "version": __version__,
-            "stage": "sparse",
-            "method": SPARSE_METHOD,
-            "input": str(dataset.root),
-            "settings": settings.to_dict(),
-            "gain_corrected": bool(sp.gain_correct and dataset.has_gain_mask),
-            "pipe_radius_m": radius,
-            "frames": n,
-            "footage": log.to_dict(),
-            "keyframes": len(idx),
-            "frames_per_second": n / max(t_features + t_motion, 1e-9),
-            "camera_offset_m": {"C_X": float(offset[0]), "C_Y": float(offset[1]),
-                                "batch_model": None if off is None else off.model,
-                                "batch_estimate": None if off is None else [float(x) for x in off.offset],
-                                "batch_sigma_m": None if off is None or off.sigma is None else
-                                [float(x) for x in off.sigma],
-                                "determined_by_batch": None if off is None else off.determined,
-                                "source": "start" if off is None else off.used,
-                                "batch_rms_px": None if off is None else off.rms_px,
-                                "batch_observations": None if off is None else off.observations},
-            "mount": None if mount is None else mount.to_dict(),
-            "pipe_axis": {"origin": axis_origin.tolist(), "direction": axis_dir.tolist(),
-                          "frame": "first keyframe's camera frame"},
-            "distance_along_pipe_m": float(h.max() - h.min()),
-            "keyframes_without_constraints": odometry.unconstrained,
-            "refinement_dof": odometry.refine_dof(),
-            "quality": quality.to_dict(),
-            "seconds": {k: round(v, 3) for k, v in seconds.items()},
-        }
-        atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
-    return SparseResult(idx, R, C, offset, np.nan if off is None else off.rms_px, traj, n, wall, seconds, mount,
-                        quality)
+        record = _run_record(dataset, settings, tracked, idx, C, mount, axis_origin, axis_dir, quality, seconds)
+        atomic_write_text(tmp / "run.json", json.dumps(record, indent=2) + "\n")
+    return SparseResult(idx, R, C, offset, np.nan if off is None else off.rms_px, traj, tracked.frames, wall, seconds,
+                        mount, quality)
+
+
+@dataclass
+class _FramePass:
+    """The pass over the frames: the keyframe selection and odometry it fed, what it read, and its time."""
+
+    selector: KeyframeSelector
+    odometry: SparseOdometry
+    log: FootageLog
+    stats: FrameStats
+    read: list[int] = field(default_factory=list)  # the frames read, repeated ones left out
+    frames: int = 0
+    t_features: float = 0.0
+    t_motion: float = 0.0
+
+
+def _track_keyframes(dataset: Dataset, settings: Settings, progress: Callable[[int, int], None] | None
+                     ) -> _FramePass:
+    """Every frame through the keyframe selector, and the keyframe links it gives through the odometry."""
+    sp = settings.sparse
+    camera, radius = dataset.camera, dataset.radius_m
+    selector = KeyframeSelector(camera, sp, settings.seed, not (sp.gain_correct and dataset.has_gain_mask))
+    odometry = SparseOdometry(camera, radius, sp, settings.seed)
+    tracked = _FramePass(selector, odometry, FootageLog(), FrameStats.for_settings(settings))
+    total = len(dataset)
+    for frame in dataset.frames(gain_correct=sp.gain_correct, log=tracked.log):
+        if frame.repeated:  # a stalled link's copy: nothing new, and no keyframe can come of it
+            continue
+        tracked.read.append(frame.index)
+        tracked.stats.add(frame.image)
+        t0 = time.perf_counter()
+        links = list(selector.push(frame.index, frame.image))
+        t1 = time.perf_counter()
+        for link in links:
+            odometry.add(link)
+        tracked.t_features += t1 - t0
+        tracked.t_motion += time.perf_counter() - t1
+        tracked.frames += 1
+        if progress is not None:
+            progress(tracked.frames, total)
+    if tracked.frames == 0:
+        raise PipemapError("no images in the dataset", dataset.root)
+    return tracked
+
+
+def _finish_odometry(tracked: _FramePass, dataset: Dataset, settings: Settings) -> Mount | None:
+    """The last keyframes through the odometry, which then finishes; the camera's mount, checked to see the wall."""
+    t1 = time.perf_counter()
+    odometry = tracked.odometry
+    for link in tracked.selector.finish():
+        odometry.add(link)
+    if not odometry.keyframes:
+        odometry.start(tracked.selector.first)
+    odometry.finish()
+    mount = Mount.from_odometry(odometry, tracked.frames)
+    require_wall_view(dataset, settings, mount)
+    tracked.t_motion += time.perf_counter() - t1
+    return mount
+
+
+def _write_keyframes_and_wall(tmp: Path, dataset: Dataset, tracked: _FramePass, traj: Trajectory, idx: np.ndarray,
+                              wall: UnrolledWall, axis_origin: np.ndarray, axis_dir: np.ndarray) -> None:
+    """trajectory.tum, frames.csv and the unrolled wall with its sidecar."""
+    write_tum(tmp / "trajectory.tum", traj, header=(
+        "pipemap sparse VO (sparse-cylinder): every keyframe's T_wc in metres; world = first keyframe's camera "
+        f"frame; pipe axis through {_fmt(axis_origin)} along {_fmt(axis_dir)}"))
+    labels = {i: "straight" for i in tracked.read}
+    labels.update({i: "repeated" for i in tracked.log.repeated})
+    write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
+    (tmp / "unrolled").mkdir()
+    atomic_write_bytes(tmp / "unrolled" / "sparse_000.png", to_png(wall.image))
+    atomic_write_text(tmp / "unrolled" / "sparse_000.json",
+                      json.dumps(_sidecar(wall, dataset.radius_m, axis_origin, axis_dir, len(idx)), indent=2) + "\n")
+
+
+def _run_record(dataset: Dataset, settings: Settings, tracked: _FramePass, idx: np.ndarray, C: np.ndarray,
+                mount: Mount | None, axis_origin: np.ndarray, axis_dir: np.ndarray, quality: RunVerdict,
+                seconds: dict) -> dict:
+    """run.json of a sparse run."""
+    from pipemap import __version__
+
+    sp, odometry, n = settings.sparse, tracked.odometry, tracked.frames
+    off = odometry.offset
+    offset = np.asarray(C[0, :2], float)
+    h = C[:, 2]
+    return {
+        "version": __version__,
+        "stage": "sparse",
+        "method": SPARSE_METHOD,
+        "input": str(dataset.root),
+        "settings": settings.to_dict(),
+        "gain_corrected": bool(sp.gain_correct and dataset.has_gain_mask),
+        "pipe_radius_m": dataset.radius_m,
+        "frames": n,
+        "footage": tracked.log.to_dict(),
+        "keyframes": len(idx),
+        "frames_per_second": n / max(tracked.t_features + tracked.t_motion, 1e-9),
+        "camera_offset_m": {"C_X": float(offset[0]), "C_Y": float(offset[1]),
+                            "batch_model": None if off is None else off.model,
+                            "batch_estimate": None if off is None else [float(x) for x in off.offset],
+                            "batch_sigma_m": None if off is None or off.sigma is None else
+                            [float(x) for x in off.sigma],
+                            "determined_by_batch": None if off is None else off.determined,
+                            "source": "start" if off is None else off.used,
+                            "batch_rms_px": None if off is None else off.rms_px,
+                            "batch_observations": None if off is None else off.observations},
+        "mount": None if mount is None else mount.to_dict(),
+        "pipe_axis": {"origin": axis_origin.tolist(), "direction": axis_dir.tolist(),
+                      "frame": "first keyframe's camera frame"},
+        "distance_along_pipe_m": float(h.max() - h.min()),
+        "keyframes_without_constraints": odometry.unconstrained,
+        "refinement_dof": odometry.refine_dof(),
+        "quality": quality.to_dict(),
+        "seconds": {k: round(v, 3) for k, v in seconds.items()},
+    }
 
 
 def _fmt(v) -> str:
