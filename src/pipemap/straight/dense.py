@@ -29,6 +29,7 @@ from pipemap.footage import FootageLog
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
 from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_verdict
+from pipemap.results import run_record, write_run_json
 from pipemap.straight.mount import Mount, estimate_mount
 from pipemap.straight.registration import Shift, adaptive_full_search, hybrid, lucas_kanade
 from pipemap.straight.scale import row_pixels_per_metre
@@ -224,8 +225,7 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
                                    settings.quality, scale_source=view.scale["source"])
         seconds = {"mount": view.mount_seconds, "registration": t_reg, "write": time.perf_counter() - t1}
         seconds["total"] = time.perf_counter() - start
-        run = _run_record(method, dataset, settings, view, idx, pos, log, t_reg, quality, seconds)
-        atomic_write_text(tmp / "run.json", json.dumps(run, indent=2) + "\n")
+        write_run_json(tmp, _run_record(method, dataset, settings, view, idx, pos, log, t_reg, quality, seconds))
     return DenseResult(method, idx, shifts, scores, view.zeta, view.scale["text"], traj, rect.size, view.rows,
                        seconds, view.mount, quality)
 
@@ -324,39 +324,32 @@ def _write_stitched(folder: Path, stitch: Stitcher, rect: Rectifier, zeta: float
 
 def _run_record(method: str, dataset: Dataset, settings: Settings, view: _RectifiedView, idx: np.ndarray,
                 pos: np.ndarray, log: FootageLog, t_reg: float, quality: RunVerdict, seconds: dict) -> dict:
-    """run.json of a dense run."""
-    from pipemap import __version__
-
+    """run.json of a dense run: the common record, then the rectification and scale."""
     dense, mount, rect = settings.dense, view.mount, view.rect
-    return {
-        "version": __version__,
-        "stage": "dense",
-        "method": method,
-        "input": str(dataset.root),
-        "settings": settings.to_dict(),
-        "pixels_per_metre": view.zeta,
-        "gain_corrected": bool(dense.gain_correct and dataset.has_gain_mask),
-        "pixels_per_metre_source": view.scale["text"],
-        "scale_source": view.scale["source"],
-        "scale": view.scale,
-        "mount": None if mount is None else mount.to_dict(),
-        "rectified_by": ("the estimated mount" if view.turn is not None else
-                         "none: the camera taken as square to the wall with image x along the pipe" +
-                         ("" if mount is None else " (the images did not determine its mount)")),
-        "reduction": view.reduction,
-        "rectified_size": list(rect.size),
-        "rectified_intrinsics": rect.K.tolist(),
-        "rectified_rotation": rect.rotation.tolist(),
-        "registered_rows": list(view.rows),
-        "pipe_radius_m": dataset.radius_m,
-        "frames": len(idx),
-        "footage": log.to_dict(),
-        "keyframes": len(idx),
-        "frames_per_second": len(idx) / max(t_reg, 1e-9),
-        "distance_along_pipe_m": float(pos[-1, 0] - pos[0, 0]),
-        "quality": quality.to_dict(),
-        "seconds": {k: round(v, 3) for k, v in seconds.items()},
-    }
+    problems = []
+    if mount is not None and view.turn is None:
+        problems.append("the images did not determine the camera's mount: the camera was taken as square to the wall")
+    return run_record(
+        method, dataset, settings, frames=len(idx), keyframes=len(idx), trajectory="frames",
+        mount=None if mount is None else mount.to_dict(), footage=log.to_dict(), problems=problems,
+        quality=quality.to_dict(), seconds=seconds,
+        stage="dense",
+        pixels_per_metre=view.zeta,
+        gain_corrected=bool(dense.gain_correct and dataset.has_gain_mask),
+        pixels_per_metre_source=view.scale["text"],
+        scale_source=view.scale["source"],
+        scale=view.scale,
+        rectified_by=("the estimated mount" if view.turn is not None else
+                      "none: the camera taken as square to the wall with image x along the pipe" +
+                      ("" if mount is None else " (the images did not determine its mount)")),
+        reduction=view.reduction,
+        rectified_size=list(rect.size),
+        rectified_intrinsics=rect.K.tolist(),
+        rectified_rotation=rect.rotation.tolist(),
+        registered_rows=list(view.rows),
+        frames_per_second=len(idx) / max(t_reg, 1e-9),
+        distance_along_pipe_m=float(pos[-1, 0] - pos[0, 0]),
+    )
 
 
 def _wall_distance(dense: DenseSettings, mount: Mount | None, radius: float) -> float:

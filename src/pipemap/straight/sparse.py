@@ -29,6 +29,7 @@ from pipemap.footage import FootageLog
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
 from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_verdict
+from pipemap.results import run_record, write_run_json
 from pipemap.straight.mount import Mount, require_wall_view
 from pipemap.straight.sparse_geometry import E_H
 from pipemap.straight.sparse_keyframes import KeyframeSelector
@@ -117,8 +118,8 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         quality = straight_verdict(SPARSE_METHOD, idx, traj.timestamps, C[:, 2], mount, radius, settings.quality,
                                    batch_rms_px=None if off is None else off.rms_px,
                                    unconstrained=odometry.unconstrained)
-        record = _run_record(dataset, settings, tracked, idx, C, mount, axis_origin, axis_dir, quality, seconds)
-        atomic_write_text(tmp / "run.json", json.dumps(record, indent=2) + "\n")
+        write_run_json(tmp, _run_record(dataset, settings, tracked, idx, C, mount, axis_origin, axis_dir, quality,
+                                        seconds))
     return SparseResult(idx, R, C, offset, np.nan if off is None else off.rms_px, traj, tracked.frames, wall, seconds,
                         mount, quality)
 
@@ -199,43 +200,35 @@ def _write_keyframes_and_wall(tmp: Path, dataset: Dataset, tracked: _FramePass, 
 def _run_record(dataset: Dataset, settings: Settings, tracked: _FramePass, idx: np.ndarray, C: np.ndarray,
                 mount: Mount | None, axis_origin: np.ndarray, axis_dir: np.ndarray, quality: RunVerdict,
                 seconds: dict) -> dict:
-    """run.json of a sparse run."""
-    from pipemap import __version__
-
+    """run.json of a sparse run: the common record, then the camera offset and the pipe axis."""
     sp, odometry, n = settings.sparse, tracked.odometry, tracked.frames
     off = odometry.offset
     offset = np.asarray(C[0, :2], float)
     h = C[:, 2]
-    return {
-        "version": __version__,
-        "stage": "sparse",
-        "method": SPARSE_METHOD,
-        "input": str(dataset.root),
-        "settings": settings.to_dict(),
-        "gain_corrected": bool(sp.gain_correct and dataset.has_gain_mask),
-        "pipe_radius_m": dataset.radius_m,
-        "frames": n,
-        "footage": tracked.log.to_dict(),
-        "keyframes": len(idx),
-        "frames_per_second": n / max(tracked.t_features + tracked.t_motion, 1e-9),
-        "camera_offset_m": {"C_X": float(offset[0]), "C_Y": float(offset[1]),
-                            "batch_model": None if off is None else off.model,
-                            "batch_estimate": None if off is None else [float(x) for x in off.offset],
-                            "batch_sigma_m": None if off is None or off.sigma is None else
-                            [float(x) for x in off.sigma],
-                            "determined_by_batch": None if off is None else off.determined,
-                            "source": "start" if off is None else off.used,
-                            "batch_rms_px": None if off is None else off.rms_px,
-                            "batch_observations": None if off is None else off.observations},
-        "mount": None if mount is None else mount.to_dict(),
-        "pipe_axis": {"origin": axis_origin.tolist(), "direction": axis_dir.tolist(),
-                      "frame": "first keyframe's camera frame"},
-        "distance_along_pipe_m": float(h.max() - h.min()),
-        "keyframes_without_constraints": odometry.unconstrained,
-        "refinement_dof": odometry.refine_dof(),
-        "quality": quality.to_dict(),
-        "seconds": {k: round(v, 3) for k, v in seconds.items()},
-    }
+    problems = []
+    if off is not None and not off.determined:
+        problems.append(f"the images did not determine the camera's offset from the axis (kept: {off.used})")
+    return run_record(
+        SPARSE_METHOD, dataset, settings, frames=n, keyframes=len(idx), trajectory="keyframes",
+        mount=None if mount is None else mount.to_dict(), footage=tracked.log.to_dict(), problems=problems,
+        quality=quality.to_dict(), seconds=seconds,
+        stage="sparse",
+        gain_corrected=bool(sp.gain_correct and dataset.has_gain_mask),
+        frames_per_second=n / max(tracked.t_features + tracked.t_motion, 1e-9),
+        camera_offset_m={"C_X": float(offset[0]), "C_Y": float(offset[1]),
+                         "batch_model": None if off is None else off.model,
+                         "batch_estimate": None if off is None else [float(x) for x in off.offset],
+                         "batch_sigma_m": None if off is None or off.sigma is None else [float(x) for x in off.sigma],
+                         "determined_by_batch": None if off is None else off.determined,
+                         "source": "start" if off is None else off.used,
+                         "batch_rms_px": None if off is None else off.rms_px,
+                         "batch_observations": None if off is None else off.observations},
+        pipe_axis={"origin": axis_origin.tolist(), "direction": axis_dir.tolist(),
+                   "frame": "first keyframe's camera frame"},
+        distance_along_pipe_m=float(h.max() - h.min()),
+        keyframes_without_constraints=odometry.unconstrained,
+        refinement_dof=odometry.refine_dof(),
+    )
 
 
 def _fmt(v) -> str:
