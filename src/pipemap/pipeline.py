@@ -35,7 +35,7 @@ from pipemap.backend.network_map import (
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.backend.revisit import RevisitReport, close_network_loops
 from pipemap.backend.sparse_ply import write_sparse_ply
-from pipemap.backend.straight import StraightResult, StraightVO
+from pipemap.backend.section_vo import StraightResult, StraightVO
 from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError

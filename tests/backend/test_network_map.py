@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipemap.backend.network_map import axes_meeting_point, map_junctions, map_sections, wall_pieces
-from pipemap.backend.straight import SectionReport
+from pipemap.backend.section_vo import SectionReport
 from pipemap.config import Settings
 from pipemap.frontend.tracks import Keyframe
 from pipemap.geometry.cylinder import Cylinder

@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pipemap.backend.straight import run_straight
+from pipemap.backend.section_vo import run_straight
 from pipemap.backend.triangulate import triangulate_rays, triangulate_two_view
 from pipemap.config import load_settings
 from pipemap.dataset import load_dataset
@@ -170,7 +170,7 @@ def test_lost_tracking_starts_new_section(straight_run):
 
 def _slipping_run(ds, keyframes, overrides):
     """The VO with its chained scale made to slip: every step after the first window 4 % short."""
-    from pipemap.backend.straight import StraightVO
+    from pipemap.backend.section_vo import StraightVO
 
     vo = StraightVO(ds.camera, ds.radius_m,
                     load_settings(overrides=["straight_vo.resection_min_points=null"] + overrides))
