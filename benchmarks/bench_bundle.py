@@ -15,13 +15,16 @@ import argparse
 import json
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "backend"))
 from pipemap.backend import BundleProblem, Observations
-from pipemap.sim import sparse_window as scene
+import pipe_window as scene  # the tests' synthetic window
 from pipemap.geometry.cylinder import fit_cylinder
 from pipemap.geometry.rotations import log_so3
 

@@ -18,11 +18,14 @@ import json
 import os
 import platform
 import shutil
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "backend"))
 from pipemap.backend import BundleProblem, Observations
 from pipemap.config import load_settings
 from pipemap.dataset import load_dataset
@@ -33,7 +36,7 @@ from pipemap.output import result_folder
 from pipemap.frontend.classification import SequenceClass
 from pipemap.pipeline import FrontEndResult, map_network, write_results
 from pipemap.sim.simulate import simulate
-from pipemap.sim.sparse_window import RADIUS, make_pipe_window
+from pipe_window import RADIUS, make_pipe_window  # the tests' synthetic window
 
 
 def dataset(args) -> Path:

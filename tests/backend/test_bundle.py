@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from pipemap.backend import BundleProblem, Observations
-from pipemap.sim.sparse_window import RADIUS, PipeWindow, make_pipe_window
+from pipe_window import RADIUS, PipeWindow, make_pipe_window
 from pipemap.solvers.schur import SchurStructure, block_sum, observation_pairs, solve_damped
 from pipemap.geometry.cylinder import Cylinder, fit_cylinder
 from pipemap.geometry.rotations import log_so3
