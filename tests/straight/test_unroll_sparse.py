@@ -15,10 +15,12 @@ from pipemap.sim.simulate import plan
 from pipemap.sim.texture import WallTexture
 
 
-def _truth_texture(dataset, side: dict, shape) -> np.ndarray:
+def _truth_texture(dataset, side: dict, run: dict, shape) -> np.ndarray:
     """The simulator's albedo at every pixel of the unrolled image, through the ground truth: the
     pipe runs along world x; texture h is x from the piece's start, s = r phi_tex with phi_tex = 0 up
-    and increasing towards +y, i.e. s = -rho (rho grows clockwise seen along +h, towards -y)."""
+    and increasing towards +y, i.e. s = -r phi (phi grows clockwise seen along +h, towards -y). The
+    image's column 0 lies at pipe-frame h = (axis.start - the axis point beside the first camera) . u,
+    the first camera being at h = 0."""
     p = plan("paper-straight-6in", width=320, height=240, frames=80, seed=1, route="forward", spacing_m=0.003)
     pipe = p.setup.scene.pipes[0]
     ap = p.setup.appearance
@@ -26,25 +28,29 @@ def _truth_texture(dataset, side: dict, shape) -> np.ndarray:
     surface = WallTexture(1, ap.mm_per_px, ap.texture_style).surface(pipe.id, pipe.extend_start + pipe.length
                                                                     + pipe.extend_end, circ)
     x0 = load_dataset(dataset).ground_truth_poses().positions[0, 0]
-    mpp = side["metres_per_pixel"]
     rows, cols = shape
-    h = side["h_of_pixel_0_0_m"] + mpp * np.arange(cols)
-    rho = side["rho_of_pixel_0_0_m"] + mpp * np.arange(rows)
+    start, end = np.array(side["axis"]["start"]), np.array(side["axis"]["end"])
+    u = (end - start) / np.linalg.norm(end - start)
+    h0 = float((start - np.array(run["pipe_axis"]["origin"])) @ u)
+    h = h0 + side["h_of_column_0_m"] + side["metres_per_pixel_along"] * np.arange(cols)
+    rho = side["axis"]["radius"] * (side["phi_of_row_0_rad"] + side["phi_per_row_rad"] * np.arange(rows))
     hh, rr = np.meshgrid(h + x0 - pipe.start[0] + pipe.extend_start, -rho)
-    return surface.sample(hh, rr, footprint_m=mpp)
+    return surface.sample(hh, rr, footprint_m=side["metres_per_pixel"])
 
 
 def test_unrolled_image_matches_the_painted_wall(six_inch_sparse, six_inch_sparse_result):
     out, result = six_inch_sparse_result
     side = json.loads((out / "unrolled" / "sparse_000.json").read_text())
+    run = json.loads((out / "run.json").read_text())
     png = cv2.imread(str(out / "unrolled" / side["image"]), cv2.IMREAD_GRAYSCALE)
-    assert png is not None and png.shape == (side["size"][1], side["size"][0])
+    assert png is not None and png.shape == (side["height_px"], side["width_px"])
+    assert side["format"] == "pipemap-unrolled/1" and side["phi_per_row_rad"] < 0  # seen from inside
     mpp = side["metres_per_pixel"]
     assert 2e-4 < mpp < 1e-3  # about one camera pixel on the wall (0.42 mm at 320 px wide)
     # the image spans the run along the pipe and the band the camera sees around it
     travelled = float(np.ptp(result.centres_pipe[:, 2]))
     assert png.shape[1] * mpp > travelled + 0.1 and png.shape[0] * mpp > 0.08
-    truth = _truth_texture(six_inch_sparse, side, png.shape)
+    truth = _truth_texture(six_inch_sparse, side, run, png.shape)
     seen = png > 0
     assert seen.mean() > 0.7
     # compare the central band (well lit, seen by many keyframes); the gain mask flattens the lighting
@@ -64,11 +70,17 @@ def test_unrolled_sidecar_describes_the_axis(six_inch_sparse_result):
     out, result = six_inch_sparse_result
     side = json.loads((out / "unrolled" / "sparse_000.json").read_text())
     run = json.loads((out / "run.json").read_text())
-    assert side["kind"] == "sparse-unrolled" and side["method"] == "sparse-cylinder"
+    assert side["method"] == "sparse-cylinder" and side["frame"] == "world frame of trajectory.tum"
     # The fitted axis runs along the first camera's image x, within the crawler's wobble (0.5 deg).
-    d = np.asarray(side["axis"]["direction"])
-    assert np.linalg.norm(d) == pytest.approx(1.0) and np.degrees(np.arccos(d[0])) < 0.6
-    np.testing.assert_allclose(side["axis"]["origin"], run["pipe_axis"]["origin"])
-    # the axis lies about 25 mm above the first camera (towards the wall it looks at, camera +z)
-    assert side["axis"]["origin"][2] == pytest.approx(0.025, abs=1.5e-3)
-    assert side["pipe_radius_m"] == pytest.approx(0.07666)
+    start, end = np.asarray(side["axis"]["start"]), np.asarray(side["axis"]["end"])
+    d = (end - start) / np.linalg.norm(end - start)
+    assert np.degrees(np.arccos(d[0])) < 0.6
+    np.testing.assert_allclose(d, run["pipe_axis"]["direction"], atol=1e-9)
+    # start lies on the axis line through the point beside the first camera ...
+    origin = np.asarray(run["pipe_axis"]["origin"])
+    assert np.linalg.norm(np.cross(start - origin, d)) < 1e-9
+    # ... which lies about 25 mm above the first camera (towards the wall it looks at, camera +z), and 12 o'clock
+    # is where that camera looks
+    assert origin[2] == pytest.approx(0.025, abs=1.5e-3)
+    assert np.degrees(np.arccos(np.clip(np.asarray(side["axis"]["up"]) @ [0, 0, 1], -1, 1))) < 1.0
+    assert side["axis"]["radius"] == pytest.approx(0.07666)

@@ -50,24 +50,35 @@ def unrolled_image(pm: "PieceMap", px_m: float) -> tuple[np.ndarray, dict]:
     img = np.full((rows, cols), UNSEEN, np.uint8)
     img[ok] = np.clip(np.rint(mean[ok]), 1, 255).astype(np.uint8)
     along = piece.length / (cols - 1)
-    around = 2 * np.pi * piece.radius / rows
-    meta = {
+    meta = unrolled_sidecar(piece.name, rows, cols, start=piece.start, end=piece.end, radius=piece.radius,
+                            up=piece.up, px_m=px_m, along_m=along, phi_of_row_0=0.0,
+                            phi_per_row=-2 * np.pi / rows, seen_fraction=float(ok.mean()),
+                            bend=piece.to_dict()["bend"] if piece.bend_h is not None else None)
+    return img, meta
+
+
+def unrolled_sidecar(piece: str, rows: int, cols: int, *, start, end, radius: float, up, px_m: float, along_m: float,
+                     phi_of_row_0: float, phi_per_row: float, seen_fraction: float, bend: dict | None = None) -> dict:
+    """The sidecar every method writes beside an unrolled image (`pipemap-unrolled/1`, docs/formats.md):
+    columns run along the axis from `start` towards `end` (world frame of trajectory.tum), rows around the
+    wall from `phi_of_row_0` in steps of `phi_per_row` (negative: anticlockwise looking from start to end,
+    the wall as seen from inside), phi = 0 at `up` (12 o'clock)."""
+    return {
         "format": FORMAT,
-        "piece": piece.name,
-        "width_px": cols,
-        "height_px": rows,
+        "piece": piece,
+        "width_px": int(cols),
+        "height_px": int(rows),
         "metres_per_pixel": float(px_m),
-        "metres_per_pixel_along": along,
-        "metres_per_pixel_around": around,
-        "axis": {"start": [float(v) for v in piece.start], "end": [float(v) for v in piece.end],
-                 "radius": piece.radius, "up": [float(v) for v in piece.up],
-                 **({"bend": piece.to_dict()["bend"]} if piece.bend_h is not None else {})},
+        "metres_per_pixel_along": float(along_m),
+        "metres_per_pixel_around": float(abs(phi_per_row) * radius),
+        "axis": {"start": [float(v) for v in start], "end": [float(v) for v in end], "radius": float(radius),
+                 "up": [float(v) for v in up], **({"bend": bend} if bend is not None else {})},
         "frame": "world frame of trajectory.tum",
         "h_of_column_0_m": 0.0,
         "columns": "column c is at h = h_of_column_0_m + c * metres_per_pixel_along, metres along the axis from "
                    "start towards end",
-        "phi_of_row_0_rad": 0.0,
-        "phi_per_row_rad": -2 * np.pi / rows,
+        "phi_of_row_0_rad": float(phi_of_row_0),
+        "phi_per_row_rad": float(phi_per_row),
         "rows": "row k is at phi = phi_of_row_0_rad + k * phi_per_row_rad (mod 2 pi): rows go anticlockwise looking "
                 "from start to end, so the image shows the wall as seen from inside the pipe",
         "phi_convention": "phi = 0 at 12 o'clock (axis.up across the axis), increasing clockwise looking from start "
@@ -75,9 +86,8 @@ def unrolled_image(pm: "PieceMap", px_m: float) -> tuple[np.ndarray, dict]:
                           "(u x e_up)), b(h) the axis's offset across u: linear between axis.bend.offset at "
                           "axis.bend.h, constant beyond its ends, zero without axis.bend",
         "unseen_value": UNSEEN,
-        "seen_fraction": float(ok.mean()),
+        "seen_fraction": float(seen_fraction),
     }
-    return img, meta
 
 
 def _stem(name: str, used: set[str]) -> str:
@@ -131,4 +141,4 @@ def read_unrolled(png: str | Path) -> tuple[np.ndarray, dict]:
     return img, meta
 
 
-__all__ = ["write_unrolled", "read_unrolled", "unrolled_image", "FORMAT"]
+__all__ = ["write_unrolled", "read_unrolled", "unrolled_image", "unrolled_sidecar", "FORMAT"]

@@ -28,6 +28,7 @@ from pipemap.errors import PipemapError
 from pipemap.footage import FootageLog
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
+from pipemap.mapping.unrolled import unrolled_sidecar
 from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_verdict
 from pipemap.results import run_record, write_run_json
 from pipemap.straight.mount import Mount, require_wall_view
@@ -109,7 +110,7 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         t3 = time.perf_counter()
         axis_origin = (np.array([0.0, 0.0, C[0, 2]]) - C[0]) @ R[0]  # the axis point beside the first camera
         axis_dir = E_H @ R[0]
-        _write_keyframes_and_wall(tmp, dataset, tracked, traj, idx, wall, axis_origin, axis_dir)
+        _write_keyframes_and_wall(tmp, dataset, tracked, traj, idx, wall, axis_origin, axis_dir, R[0], C[0])
         seconds = {"features": tracked.t_features, "motion": tracked.t_motion, "unroll": t_unroll,
                    "write": time.perf_counter() - t3}
         seconds["total"] = time.perf_counter() - start
@@ -183,8 +184,10 @@ def _finish_odometry(tracked: _FramePass, dataset: Dataset, settings: Settings) 
 
 
 def _write_keyframes_and_wall(tmp: Path, dataset: Dataset, tracked: _FramePass, traj: Trajectory, idx: np.ndarray,
-                              wall: UnrolledWall, axis_origin: np.ndarray, axis_dir: np.ndarray) -> None:
-    """trajectory.tum, frames.csv and the unrolled wall with its sidecar."""
+                              wall: UnrolledWall, axis_origin: np.ndarray, axis_dir: np.ndarray, R_first: np.ndarray,
+                              C_first: np.ndarray) -> None:
+    """trajectory.tum, frames.csv and the unrolled wall with its sidecar (the first keyframe's pose in the pipe
+    frame, R_first and C_first, takes the wall's pipe-frame coordinates to the trajectory's world)."""
     write_tum(tmp / "trajectory.tum", traj, header=(
         "pipemap sparse VO (sparse-cylinder): every keyframe's T_wc in metres; world = first keyframe's camera "
         f"frame; pipe axis through {_fmt(axis_origin)} along {_fmt(axis_dir)}"))
@@ -192,9 +195,10 @@ def _write_keyframes_and_wall(tmp: Path, dataset: Dataset, tracked: _FramePass, 
     labels.update({i: "repeated" for i in tracked.log.repeated})
     write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
     (tmp / "unrolled").mkdir()
-    atomic_write_bytes(tmp / "unrolled" / "sparse_000.png", to_png(wall.image))
-    atomic_write_text(tmp / "unrolled" / "sparse_000.json",
-                      json.dumps(_sidecar(wall, dataset.radius_m, axis_origin, axis_dir, len(idx)), indent=2) + "\n")
+    # rows from the largest phi down: the wall as seen from inside, as every method's unrolled image shows it
+    atomic_write_bytes(tmp / "unrolled" / "sparse_000.png", to_png(wall.image[::-1]))
+    side = _sidecar(wall, dataset.radius_m, R_first, C_first, len(idx))
+    atomic_write_text(tmp / "unrolled" / "sparse_000.json", json.dumps(side, indent=2) + "\n")
 
 
 def _run_record(dataset: Dataset, settings: Settings, tracked: _FramePass, idx: np.ndarray, C: np.ndarray,
@@ -245,22 +249,21 @@ def _unrolled(dataset: Dataset, camera, radius: float, idx, R, C, sp) -> Unrolle
     return unroll(views, camera, radius, box, mpp)
 
 
-def _sidecar(wall: UnrolledWall, radius: float, origin, direction, keyframes: int) -> dict:
-    return {
-        "image": "sparse_000.png",
-        "kind": "sparse-unrolled",
-        "method": SPARSE_METHOD,
-        "metres_per_pixel": wall.metres_per_pixel,
-        "pipe_radius_m": radius,
-        "axis": {"origin": [float(x) for x in origin], "direction": [float(x) for x in direction]},
-        "h_of_pixel_0_0_m": wall.h0,
-        "rho_of_pixel_0_0_m": wall.rho0,
-        "size": [int(wall.image.shape[1]), int(wall.image.shape[0])],
-        "keyframes": keyframes,
-        "note": ("columns run along the axis: h = h_of_pixel_0_0_m + column * metres_per_pixel, metres from "
-                 "`axis.origin` along `axis.direction` (world = the trajectory's frame, the first keyframe's camera); "
-                 "rows run around the wall: rho = r * phi = rho_of_pixel_0_0_m + row * metres_per_pixel, phi = 0 "
-                 "where the first camera looks (up), increasing clockwise seen looking along +axis, so the image "
-                 "shows the wall from outside the pipe; grey = mean of the gain-corrected keyframes that see the "
-                 "wall (report section 6.1), 0 = unseen"),
-    }
+def _sidecar(wall: UnrolledWall, radius: float, R_first: np.ndarray, C_first: np.ndarray, keyframes: int) -> dict:
+    """The common sidecar of an unrolled image (mapping.unrolled) for the sparse wall, whose rows were flipped:
+    phi = 0 where the first camera looks (up, the report's R0), which is 12 o'clock for the report's robots."""
+    rows, cols = wall.image.shape
+    mpp = wall.metres_per_pixel
+
+    def world(h: float) -> np.ndarray:  # the axis point at pipe-frame h, in the first keyframe's camera frame
+        return (np.array([0.0, 0.0, h]) - C_first) @ R_first
+
+    side = unrolled_sidecar(
+        "pipe", rows, cols, start=world(wall.h0), end=world(wall.h0 + (cols - 1) * mpp), radius=radius,
+        up=np.array([0.0, 1.0, 0.0]) @ R_first, px_m=mpp, along_m=mpp,
+        phi_of_row_0=(wall.rho0 + (rows - 1) * mpp) / radius, phi_per_row=-mpp / radius,
+        seen_fraction=float(np.isfinite(wall.image).mean()))
+    side.update(image="sparse_000.png", method=SPARSE_METHOD, keyframes=keyframes,
+                grey="the mean of the gain-corrected keyframes that see the wall (report section 6.1), stretched to "
+                     "1..255; 0 = unseen")
+    return side
