@@ -84,3 +84,5 @@ def test_unrolled_sidecar_describes_the_axis(six_inch_sparse_result):
     assert origin[2] == pytest.approx(0.025, abs=1.5e-3)
     assert np.degrees(np.arccos(np.clip(np.asarray(side["axis"]["up"]) @ [0, 0, 1], -1, 1))) < 1.0
     assert side["axis"]["radius"] == pytest.approx(0.07666)
+    # the camera looks up, so 12 o'clock is inside the band it unrolled, about in its middle
+    assert 0.3 * side["height_px"] < side["row_of_12_oclock"] < 0.7 * side["height_px"]

@@ -79,6 +79,7 @@ def unrolled_sidecar(piece: str, rows: int, cols: int, *, start, end, radius: fl
                    "start towards end",
         "phi_of_row_0_rad": float(phi_of_row_0),
         "phi_per_row_rad": float(phi_per_row),
+        "row_of_12_oclock": _row_of(0.0, phi_of_row_0, phi_per_row),
         "rows": "row k is at phi = phi_of_row_0_rad + k * phi_per_row_rad (mod 2 pi): rows go anticlockwise looking "
                 "from start to end, so the image shows the wall as seen from inside the pipe",
         "phi_convention": "phi = 0 at 12 o'clock (axis.up across the axis), increasing clockwise looking from start "
@@ -88,6 +89,13 @@ def unrolled_sidecar(piece: str, rows: int, cols: int, *, start, end, radius: fl
         "unseen_value": UNSEEN,
         "seen_fraction": float(seen_fraction),
     }
+
+
+def _row_of(phi: float, phi_of_row_0: float, phi_per_row: float) -> float:
+    """The (fractional) row at clock angle phi, the turn taken nearest the image's first row."""
+    turn = 2 * np.pi
+    d = ((phi - phi_of_row_0) / phi_per_row) % (turn / abs(phi_per_row))
+    return float(d)
 
 
 def _stem(name: str, used: set[str]) -> str:
