@@ -273,8 +273,11 @@ class DenseSettings(_Section):
         4.0, gt=0, description="without a gain mask, every rectified frame is divided by its own Gaussian blur of "
         "this sigma (px): the LEDs' light stays put in the image while the wall moves, and holds the registration "
         "back towards no motion; None = the frames as they are")
-    stitch_min_shift_px: float = Field(50.0, ge=0, description="frames pasted into the stitched image are at least "
+    stitch_min_shift_px: float = Field(50.0, ge=0, description="frames stitched into the unrolled wall are at least "
                                        "this far apart along the pipe (report: 50 px)")
+    unrolled_px_m: float | None = Field(None, gt=0, description="metres per pixel of the unrolled wall; None: one "
+                                        "camera pixel at the first frame's principal point")
+    unrolled_max_px: int = Field(8000, gt=16, description="longest side of the unrolled image (coarser pixels beyond)")
     full_search_reference_fraction: float | None = Field(
         0.2, gt=0, lt=0.5, description="full search: register against a reference frame until the content has "
         "moved this fraction of the image width, so that integer rounding errs once per reference rather than "

@@ -173,9 +173,12 @@ def test_run_dense_result_folder_and_distance(six_inch, tmp_path):
     assert run["method"] == "dense-hybrid" and run["frames"] == n and run["settings"]["dense"]["scale"] == 0.5
     assert run["settings"]["dense"]["camera_offset_m"] == OFFSET_6IN and run["frames_per_second"] > 0
     side = json.loads((out / "unrolled" / "dense_000.json").read_text())
-    assert side["metres_per_pixel"] == pytest.approx(1 / result.zeta)
+    assert side["format"] == "pipemap-unrolled/1" and side["frames_stitched"] > 1
     png = cv2.imread(str(out / "unrolled" / "dense_000.png"), cv2.IMREAD_GRAYSCALE)
-    assert png is not None and png.shape[1] > result.size[0]  # wider than one frame: frames were pasted along
+    assert png is not None and png.shape == (side["height_px"], side["width_px"])
+    # the wall unrolled spans the distance travelled and a frame's footprint more
+    travelled = float(np.ptp(result.trajectory.positions[:, 0]))
+    assert (png.shape[1] - 1) * side["metres_per_pixel_along"] > travelled + 0.05
     ev = evaluate(out, six_inch, write=False)
     assert ev.associated_poses == n
     assert ev.distance.forward.ground_truth > 0.15

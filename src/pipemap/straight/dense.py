@@ -34,9 +34,9 @@ from pipemap.straight.mount import Mount, estimate_mount
 from pipemap.straight.registration import Shift, adaptive_full_search, hybrid, lucas_kanade
 from pipemap.straight.scale import row_pixels_per_metre
 from pipemap.straight.sparse_features import flatten_light
-from pipemap.straight.sparse_geometry import wall_distance
+from pipemap.straight.sparse_geometry import R0, wall_distance
 from pipemap.straight.undistort import QUARTER, Rectifier, reduction_for_wall
-from pipemap.straight.unroll import to_png
+from pipemap.straight.unroll import centre_footprint_m, footprint, frame_images, unroll, unrolled_png, wall_sidecar
 from pipemap.trajectory import Trajectory, write_tum
 
 DENSE_METHODS = ("dense-full-search", "dense-lk", "dense-hybrid")
@@ -131,56 +131,17 @@ def texture_weights(img: np.ndarray, rows) -> np.ndarray:
     return np.einsum("ij,ij->i", gx, gx).astype(float)
 
 
-class Stitcher:
-    """The report's dense stitched image: frames at their integrated pixel offsets, averaged where they overlap."""
-
-    def __init__(self, valid: np.ndarray, min_shift_px: float):
-        self.valid = valid.astype(np.float32)
-        self.min_shift = min_shift_px
-        self.tiles: list[tuple[np.ndarray, np.ndarray]] = []  # (canvas offset u = -C, image)
-        self.offset = np.zeros(2)
-        self._last: np.ndarray | None = None
-
-    def add(self, offset_u: np.ndarray, image: np.ndarray) -> None:
-        if self._last is None or abs(offset_u[0] - self._last[0]) >= self.min_shift:
-            self.tiles.append((np.array(offset_u, float), image))
-            self._last = np.array(offset_u, float)
-
-    def render(self) -> tuple[np.ndarray, np.ndarray]:
-        """(canvas float32, origin): canvas pixel (0, 0) is first-frame pixel `origin` (x, y)."""
-        h, w = self.valid.shape
-        us = np.array([u for u, _ in self.tiles])
-        umin = np.floor(us.min(axis=0))
-        span = np.ceil(us.max(axis=0) - umin).astype(int)
-        acc = np.zeros((h + span[1] + 2, w + span[0] + 2), np.float32)
-        wgt = np.zeros_like(acc)
-        for u, img in self.tiles:  # one paste per tile (tens to hundreds), each vectorised
-            d = u - umin
-            i = np.floor(d).astype(int)
-            frac = d - i
-            M = np.float32([[1, 0, frac[0]], [0, 1, frac[1]]])
-            tile = cv2.warpAffine(img * self.valid, M, (w + 1, h + 1), flags=cv2.INTER_LINEAR)
-            mask = cv2.warpAffine(self.valid, M, (w + 1, h + 1), flags=cv2.INTER_LINEAR)
-            acc[i[1]:i[1] + h + 1, i[0]:i[0] + w + 1] += tile
-            wgt[i[1]:i[1] + h + 1, i[0]:i[0] + w + 1] += mask
-        canvas = np.where(wgt > 0.5, acc / np.maximum(wgt, 1e-6), np.nan)
-        return canvas.astype(np.float32), -umin
-
-
 def _frames(dataset: Dataset, rect: Rectifier, counter: list, gain_correct: bool,
-            light_sigma_px: float | None = None, shown: list | None = None,
-            log: FootageLog | None = None) -> Iterator[np.ndarray]:
+            light_sigma_px: float | None = None, log: FootageLog | None = None) -> Iterator[np.ndarray]:
     """The rectified frames to register; with light_sigma_px, each divided by its own blur
     (sparse_features.flatten_light): without a gain mask the LEDs' light is a pattern fixed in the image while
     the wall moves through it, and it holds the registration back towards no motion (5.5 % short at 50 deg).
-    `shown` gets the frame as it looks, for the stitched image. Repeated frames (a stalled link) are skipped."""
+    Repeated frames (a stalled link) are skipped."""
     for frame in dataset.frames(gain_correct=gain_correct, log=log):
         if frame.repeated:
             continue
         counter.append(frame.index)
         img = rect(frame.image)
-        if shown is not None:
-            shown[:] = [img]
         yield img if light_sigma_px is None else flatten_light(img, light_sigma_px)
 
 
@@ -200,16 +161,14 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
     rect = view.rect
     total = len(dataset)
     indices: list[int] = []
-    shown: list[np.ndarray] = []
     stats = FrameStats.for_settings(settings)
-    feed = _RegisteredFrames(view, Stitcher(rect.valid, dense.stitch_min_shift_px), stats, shown, progress, total)
+    feed = _RegisteredFrames(view, dense.stitch_min_shift_px, stats, progress, total)
 
     start = time.perf_counter()
     with result_folder(Path(out_dir)) as tmp:
         corrected = dense.gain_correct and dataset.has_gain_mask
         log = FootageLog()
-        frames = _frames(dataset, rect, indices, dense.gain_correct, None if corrected else dense.light_sigma_px,
-                         shown, log)
+        frames = _frames(dataset, rect, indices, dense.gain_correct, None if corrected else dense.light_sigma_px, log)
         shifts, scores = estimate_shifts(frames, method, dense, view.rows, feed)
         t_reg = time.perf_counter() - start
         if len(indices) == 0:
@@ -220,7 +179,7 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
         traj = Trajectory(dataset.times()[idx], pos, np.tile(rect.rotation, (len(idx), 1, 1)))  # camera -> virtual axes
         t1 = time.perf_counter()
         _write_trajectory_and_frames(tmp, method, traj, dataset, idx, log)
-        _write_stitched(tmp / "unrolled", feed.stitch, rect, view.zeta, method)
+        _write_unrolled(tmp / "unrolled", dataset, view, idx[feed.stitched], pos[feed.stitched], dense, method)
         quality = straight_verdict(method, idx, traj.timestamps, pos[:, 0], view.mount, dataset.radius_m,
                                    settings.quality, scale_source=view.scale["source"])
         seconds = {"mount": view.mount_seconds, "registration": t_reg, "write": time.perf_counter() - t1}
@@ -265,11 +224,14 @@ def _rectified_view(dataset: Dataset, settings: Settings) -> _RectifiedView:
 
 class _RegisteredFrames:
     """Called with each registered frame: its statistics, its pair's zeta (the rows' own zetas weighted by the
-    texture of the pair's first frame), its tile of the stitched image, and the progress."""
+    texture of the pair's first frame), whether it goes into the stitched wall, and the progress."""
 
-    def __init__(self, view: _RectifiedView, stitch: Stitcher, stats: FrameStats, shown: list[np.ndarray],
+    def __init__(self, view: _RectifiedView, stitch_min_shift_px: float, stats: FrameStats,
                  progress: Callable[[int, int], None] | None, total: int):
-        self.view, self.stitch, self.stats, self.shown = view, stitch, stats, shown
+        self.view, self.stats = view, stats
+        self.stitch_min_shift = stitch_min_shift_px
+        self.stitched: list[int] = []  # registered frames stitched into the wall: the report's 50 px apart
+        self._stitched_at = 0.0
         self.progress, self.total = progress, total
         self.content = np.zeros(2)  # the content's displacement from the first frame
         self.weights: np.ndarray | None = None
@@ -284,7 +246,9 @@ class _RegisteredFrames:
                 w = self.weights
                 self.pair_zeta.append(float(w @ row_zeta / w.sum()) if w.sum() > 0 else self.view.zeta)
             self.weights = texture_weights(img, self.view.rows)
-        self.stitch.add(-self.content, self.shown[0])
+        if not self.stitched or abs(self.content[0] - self._stitched_at) >= self.stitch_min_shift:
+            self.stitched.append(k)
+            self._stitched_at = self.content[0]
         if self.progress is not None:
             self.progress(k + 1, self.total)
 
@@ -299,27 +263,30 @@ def _write_trajectory_and_frames(tmp: Path, method: str, traj: Trajectory, datas
     write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
 
 
-def _write_stitched(folder: Path, stitch: Stitcher, rect: Rectifier, zeta: float, method: str) -> None:
-    """The stitched wall image, dense_000.png, and its sidecar dense_000.json in a new `folder`."""
+def _write_unrolled(folder: Path, dataset: Dataset, view: _RectifiedView, idx: np.ndarray, pos: np.ndarray,
+                    dense: DenseSettings, method: str) -> None:
+    """The stitched frames (report section 6) carried onto the wall, (h, r phi), as every method unrolls it:
+    dense_000.png and its sidecar in a new `folder`. Each frame's pose in the pipe frame is the mount (or the
+    report's square camera at the offset the scale assumed) moved along the axis by its registered distance."""
+    radius = dataset.radius_m
+    if view.turn is not None:
+        R, offset = view.mount.rotation, np.asarray(view.mount.offset_m, float)
+    else:
+        R, offset = R0, np.array([0.0, radius - _wall_distance(dense, view.mount, radius)])
+    C = np.column_stack([np.tile(offset, (len(idx), 1)), pos[:, 0]])
+    bounds = np.array([footprint(dataset.camera, R, c, radius) for c in C])
+    box = np.array([bounds[:, 0].min(), bounds[:, 1].max(), bounds[:, 2].min(), bounds[:, 3].max()])
+    mpp = dense.unrolled_px_m or centre_footprint_m(dataset.camera, R, C[0], radius)
+    mpp = max(mpp, max(box[1] - box[0], box[3] - box[2]) / (dense.unrolled_max_px - 1))
+    views = ((img, R, c) for img, c in zip(frame_images(dataset, idx, dense.gain_correct), C))
+    wall = unroll(views, dataset.camera, radius, box, mpp)
     folder.mkdir()
-    canvas, origin = stitch.render()
-    atomic_write_bytes(folder / "dense_000.png", to_png(canvas))
-    cx, cy = rect.K[0, 2], rect.K[1, 2]
-    sidecar = {
-        "image": "dense_000.png",
-        "kind": "dense-stitched",
-        "method": method,
-        "metres_per_pixel": 1.0 / zeta,
-        "pixels_per_metre": zeta,
-        "axis": {"origin": [0.0, 0.0, 0.0], "direction": [1.0, 0.0, 0.0]},
-        "column_0_along_m": float((origin[0] - cx) / zeta),
-        "row_0_across_m": float((origin[1] - cy) / zeta),
-        "note": ("perspective mosaic of the rectified frames (report section 6), not r*phi: columns run along the "
-                 "axis (world x, metres = column * metres_per_pixel + column_0_along_m at the first frame's "
-                 "principal row), rows across the pipe; mean of overlapping frames"),
-        "frames_pasted": len(stitch.tiles),
-    }
-    atomic_write_text(folder / "dense_000.json", json.dumps(sidecar, indent=2) + "\n")
+    atomic_write_bytes(folder / "dense_000.png", unrolled_png(wall))
+    side = wall_sidecar(wall, radius, R, C[0])
+    side.update(image="dense_000.png", method=method, frames_stitched=len(idx),
+                grey="the mean of the frames stitched (at least dense.stitch_min_shift_px apart along the pipe) that "
+                     "see the wall, stretched to 1..255; 0 = unseen")
+    atomic_write_text(folder / "dense_000.json", json.dumps(side, indent=2) + "\n")
 
 
 def _run_record(method: str, dataset: Dataset, settings: Settings, view: _RectifiedView, idx: np.ndarray,

@@ -17,7 +17,7 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 import numpy as np
 
@@ -28,14 +28,14 @@ from pipemap.errors import PipemapError
 from pipemap.footage import FootageLog
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
-from pipemap.mapping.unrolled import unrolled_sidecar
 from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_verdict
 from pipemap.results import run_record, write_run_json
 from pipemap.straight.mount import Mount, require_wall_view
 from pipemap.straight.sparse_geometry import E_H
 from pipemap.straight.sparse_keyframes import KeyframeSelector
 from pipemap.straight.sparse_odometry import SparseOdometry
-from pipemap.straight.unroll import UnrolledWall, centre_footprint_m, footprint, to_png, unroll
+from pipemap.straight.unroll import (UnrolledWall, centre_footprint_m, footprint, frame_images, unroll, unrolled_png,
+                                     wall_sidecar)
 from pipemap.trajectory import Trajectory, write_tum
 
 SPARSE_METHOD = "sparse-cylinder"
@@ -60,17 +60,6 @@ def to_first_camera(R: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """Pipe-frame poses -> poses in the first camera's frame: T_c0^-1 T_k."""
     R0, C0 = R[0], C[0]
     return np.einsum("ji,kjl->kil", R0, R), (C - C0) @ R0
-
-
-def _keyframe_images(dataset: Dataset, indices: np.ndarray, gain_correct: bool) -> Iterator[np.ndarray]:
-    wanted = set(int(i) for i in indices)
-    if dataset.image_paths is not None:
-        for i in indices:
-            yield dataset.read(int(i), gain_correct=gain_correct).image
-        return
-    for frame in dataset.frames(gain_correct=gain_correct):  # a video: one pass, no seeking
-        if frame.index in wanted:
-            yield frame.image
 
 
 def _require_pinhole(dataset: Dataset) -> None:
@@ -195,8 +184,7 @@ def _write_keyframes_and_wall(tmp: Path, dataset: Dataset, tracked: _FramePass, 
     labels.update({i: "repeated" for i in tracked.log.repeated})
     write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
     (tmp / "unrolled").mkdir()
-    # rows from the largest phi down: the wall as seen from inside, as every method's unrolled image shows it
-    atomic_write_bytes(tmp / "unrolled" / "sparse_000.png", to_png(wall.image[::-1]))
+    atomic_write_bytes(tmp / "unrolled" / "sparse_000.png", unrolled_png(wall))
     side = _sidecar(wall, dataset.radius_m, R_first, C_first, len(idx))
     atomic_write_text(tmp / "unrolled" / "sparse_000.json", json.dumps(side, indent=2) + "\n")
 
@@ -245,24 +233,12 @@ def _unrolled(dataset: Dataset, camera, radius: float, idx, R, C, sp) -> Unrolle
     box = np.array([lo[0], hi[1], lo[2], hi[3]])
     mpp = sp.unrolled_px_m or centre_footprint_m(camera, R[0], C[0], radius)
     mpp = max(mpp, max(box[1] - box[0], box[3] - box[2]) / (sp.unrolled_max_px - 1))
-    views = ((img, r, c) for img, r, c in zip(_keyframe_images(dataset, idx, sp.gain_correct), R, C))
+    views = ((img, r, c) for img, r, c in zip(frame_images(dataset, idx, sp.gain_correct), R, C))
     return unroll(views, camera, radius, box, mpp)
 
 
 def _sidecar(wall: UnrolledWall, radius: float, R_first: np.ndarray, C_first: np.ndarray, keyframes: int) -> dict:
-    """The common sidecar of an unrolled image (mapping.unrolled) for the sparse wall, whose rows were flipped:
-    phi = 0 where the first camera looks (up, the report's R0), which is 12 o'clock for the report's robots."""
-    rows, cols = wall.image.shape
-    mpp = wall.metres_per_pixel
-
-    def world(h: float) -> np.ndarray:  # the axis point at pipe-frame h, in the first keyframe's camera frame
-        return (np.array([0.0, 0.0, h]) - C_first) @ R_first
-
-    side = unrolled_sidecar(
-        "pipe", rows, cols, start=world(wall.h0), end=world(wall.h0 + (cols - 1) * mpp), radius=radius,
-        up=np.array([0.0, 1.0, 0.0]) @ R_first, px_m=mpp, along_m=mpp,
-        phi_of_row_0=(wall.rho0 + (rows - 1) * mpp) / radius, phi_per_row=-mpp / radius,
-        seen_fraction=float(np.isfinite(wall.image).mean()))
+    side = wall_sidecar(wall, radius, R_first, C_first)
     side.update(image="sparse_000.png", method=SPARSE_METHOD, keyframes=keyframes,
                 grey="the mean of the gain-corrected keyframes that see the wall (report section 6.1), stretched to "
                      "1..255; 0 = unseen")

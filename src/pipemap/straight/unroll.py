@@ -15,7 +15,7 @@ image of the camera's own view, where wall markings read the right way round).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Iterable, Iterator
 
 import cv2
 import numpy as np
@@ -86,6 +86,42 @@ def unroll(views: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], camera: C
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan).astype(np.float32)
     return UnrolledWall(mean, cnt.astype(np.int32), h0, rho0, mpp)
+
+
+def frame_images(dataset, indices, gain_correct: bool) -> Iterator[np.ndarray]:
+    """The images of the frames `indices` (ascending), as read for mapping."""
+    wanted = set(int(i) for i in indices)
+    if dataset.image_paths is not None:
+        for i in indices:
+            yield dataset.read(int(i), gain_correct=gain_correct).image
+        return
+    for frame in dataset.frames(gain_correct=gain_correct):  # a video: one pass, no seeking
+        if frame.index in wanted:
+            yield frame.image
+
+
+def wall_sidecar(wall: UnrolledWall, radius: float, R_first: np.ndarray, C_first: np.ndarray) -> dict:
+    """The common sidecar (mapping.unrolled_sidecar) of `wall` written with its rows flipped (seen from inside),
+    in the world of a trajectory whose origin is the first camera, at (R_first, C_first) in the pipe frame:
+    phi = 0 where the report's R0 camera looks (up), which is 12 o'clock for the report's robots."""
+    from pipemap.mapping.unrolled import unrolled_sidecar
+
+    rows, cols = wall.image.shape
+    mpp = wall.metres_per_pixel
+
+    def world(h: float) -> np.ndarray:  # the axis point at pipe-frame h, in the first camera's frame
+        return (np.array([0.0, 0.0, h]) - C_first) @ R_first
+
+    return unrolled_sidecar(
+        "pipe", rows, cols, start=world(wall.h0), end=world(wall.h0 + (cols - 1) * mpp), radius=radius,
+        up=np.array([0.0, 1.0, 0.0]) @ R_first, px_m=mpp, along_m=mpp,
+        phi_of_row_0=(wall.rho0 + (rows - 1) * mpp) / radius, phi_per_row=-mpp / radius,
+        seen_fraction=float(np.isfinite(wall.image).mean()))
+
+
+def unrolled_png(wall: UnrolledWall) -> bytes:
+    """The PNG of `wall` as every method shows it: rows flipped, the wall seen from inside."""
+    return to_png(wall.image[::-1])
 
 
 def to_png(image: np.ndarray) -> bytes:
