@@ -36,8 +36,8 @@ from pipemap.evaluation import evaluate
 from pipemap.sim.presets import PRESETS, _wall_camera, register_preset
 from pipemap.sim.simulate import simulate
 from pipemap.straight import DENSE_METHODS, run_dense
-from pipemap.straight.sparse import SPARSE_METHOD, run_sparse
-from pipemap.straight.sparse_batch import mount_of
+from pipemap.straight.sparse.run import SPARSE_METHOD, run_sparse
+from pipemap.straight.sparse.batch import mount_of
 
 TO_PIPE = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # simulator world (x along, z up) -> (X, Y, h)
 

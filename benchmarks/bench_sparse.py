@@ -43,7 +43,7 @@ from straight_pipes import CASES, dataset, distance_rows, distance_text
 from pipemap.config import load_settings
 from pipemap.dataset import load_dataset
 from pipemap.evaluation import evaluate
-from pipemap.straight.sparse import run_sparse
+from pipemap.straight.sparse.run import run_sparse
 
 REPORT = {  # Table 2 of the 2010 report, sparse column: abs error %
     "6in-forward": {"forward": 0.306, "note": "dataset 1 (dataset 2: 0.289)"},

@@ -65,7 +65,7 @@ def test_straight_pipe_methods_refuse_a_camera_looking_along_the_pipe(cctv_run, 
     """With --method dense-hybrid this camera once gave 2.87 m for an 11.18 m route, silently."""
     from pipemap.errors import PipemapError
     from pipemap.straight import run_dense
-    from pipemap.straight.sparse import run_sparse
+    from pipemap.straight.sparse.run import run_sparse
 
     data, _ = cctv_run
     with pytest.raises(PipemapError, match="the camera looks along the pipe.*use --method network"):

@@ -405,7 +405,7 @@ def _map(dataset: Path, out: Path, method: str, settings):
     from pipemap.dataset import load_dataset
     from pipemap.pipeline import run_pipeline
     from pipemap.straight import DENSE_METHODS, run_dense
-    from pipemap.straight.sparse import SPARSE_METHOD, run_sparse
+    from pipemap.straight.sparse.run import SPARSE_METHOD, run_sparse
 
     if method == "auto":
         from pipemap.view import camera_view

@@ -303,7 +303,7 @@ class SparseSettings(_Section):
     offset_batch_keyframes: int = Field(10, gt=1, description="keyframes of the initial offset C_X, C_Y batch")
     offset_batch_model: Literal["bundle", "report"] = Field(
         "bundle", description="bundle: every batch keyframe's 6-DOF pose, the wall points and the axis's offset and "
-        "tilt by bundle adjustment on the wall (sparse_batch.py); report: eqs. 45-49 as printed, all keyframes at R0")
+        "tilt by bundle adjustment on the wall (sparse/batch.py); report: eqs. 45-49 as printed, all keyframes at R0")
     offset_wall_sigma_m: float = Field(1e-4, gt=0, description="bundle batch: points may leave the wall by about this "
                                        "per pixel of reprojection error (the stiffness of the known radius)")
     offset_batch_iterations: int = Field(50, gt=0, description="bundle batch: Levenberg-Marquardt iterations")

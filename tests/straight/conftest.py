@@ -31,7 +31,7 @@ def six_inch_sparse(tmp_path_factory):
 @pytest.fixture(scope="session")
 def six_inch_sparse_result(six_inch_sparse, tmp_path_factory):
     """run_sparse with its default settings on the 6-inch render: (result folder, SparseResult)."""
-    from pipemap.straight.sparse import run_sparse
+    from pipemap.straight.sparse.run import run_sparse
 
     out = tmp_path_factory.mktemp("sparse-result") / "res"
     return out, run_sparse(six_inch_sparse, out)

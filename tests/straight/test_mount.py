@@ -19,8 +19,8 @@ from pipemap.straight.dense import estimate_shifts, run_dense
 from pipemap.straight.mount import estimate_mount
 from pipemap.straight.registration import adaptive_full_search
 from pipemap.straight.scale import pixels_per_metre, wall_depth
-from pipemap.straight.sparse_batch import mount_of
-from pipemap.straight.sparse_geometry import R0, rotation_from_travel, wall_points
+from pipemap.straight.sparse.batch import mount_of
+from pipemap.straight.sparse.geometry import R0, rotation_from_travel, wall_points
 from pipemap.straight.undistort import Rectifier
 
 TO_PIPE = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # simulator world (x along, z up) -> (X, Y, h)

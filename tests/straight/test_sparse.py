@@ -18,16 +18,16 @@ from pipemap.geometry.cylinder import Cylinder
 from pipemap.geometry.rotations import exp_so3
 from pipemap.geometry.se3 import retract
 from pipemap.sim.simulate import simulate
-from pipemap.straight.sparse import SPARSE_METHOD, run_sparse
-from pipemap.straight.sparse_batch import bundle_batch, to_pipe_frame
-from pipemap.straight.sparse_features import Keypoints, harris_response, match, quadratic_refine, region_corners
-from pipemap.straight.sparse_geometry import R0, wall_coords, wall_from_coords, wall_offset_jacobian, wall_points
-from pipemap.straight.sparse_keyframes import KeyframeLink, View, inlier_pairs
-from pipemap.straight.sparse_motion import (KeyframeState, estimate_one_dof, gate_outliers, refine_crawler,
+from pipemap.straight.sparse.run import SPARSE_METHOD, run_sparse
+from pipemap.straight.sparse.batch import bundle_batch, to_pipe_frame
+from pipemap.straight.sparse.features import Keypoints, harris_response, match, quadratic_refine, region_corners
+from pipemap.straight.sparse.geometry import R0, wall_coords, wall_from_coords, wall_offset_jacobian, wall_points
+from pipemap.straight.sparse.keyframes import KeyframeLink, View, inlier_pairs
+from pipemap.straight.sparse.motion import (KeyframeState, estimate_one_dof, gate_outliers, refine_crawler,
                                             refine_six_dof)
-from pipemap.straight.sparse_odometry import SparseOdometry
-from pipemap.straight.sparse_offset import OffsetBatch, offset_residuals, optimise_offset
-from pipemap.straight.sparse_sums import WallSums
+from pipemap.straight.sparse.odometry import SparseOdometry
+from pipemap.straight.sparse.offset import OffsetBatch, offset_residuals, optimise_offset
+from pipemap.straight.sparse.sums import WallSums
 
 RADIUS = 0.07666  # the report's pipe 1
 TO_PIPE = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # simulator world (x along, z up) -> (X, Y, h)

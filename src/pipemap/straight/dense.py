@@ -33,8 +33,8 @@ from pipemap.results import run_record, write_run_json
 from pipemap.straight.mount import Mount, estimate_mount
 from pipemap.straight.registration import Shift, adaptive_full_search, hybrid, lucas_kanade
 from pipemap.straight.scale import row_pixels_per_metre
-from pipemap.straight.sparse_features import flatten_light
-from pipemap.straight.sparse_geometry import R0, wall_distance
+from pipemap.straight.sparse.features import flatten_light
+from pipemap.straight.sparse.geometry import R0, wall_distance
 from pipemap.straight.undistort import QUARTER, Rectifier, reduction_for_wall
 from pipemap.straight.unroll import centre_footprint_m, footprint, frame_images, unroll, unrolled_png, wall_sidecar
 from pipemap.trajectory import Trajectory, write_tum

@@ -1,6 +1,6 @@
 """The camera's mount in the pipe: how it is turned relative to the pipe axis and how far it sits from it.
 
-The sparse method's initial batch (sparse_odometry.py, sparse_batch.py) estimates the poses of its keyframes
+The sparse method's initial batch (sparse/odometry.py, sparse/batch.py) estimates the poses of its keyframes
 relative to the wall of known radius; the mount is their mean in the report's pipe frame (section 2), the
 robot's wobble averaged out: the angle between the optical axis and the pipe axis (90 deg: square to the
 wall, less: turned towards the direction of travel), the roll of the pipe axis in the image (0: along image
@@ -22,10 +22,10 @@ import numpy as np
 from pipemap.config import Settings
 from pipemap.dataset import Dataset
 from pipemap.errors import PipemapError
-from pipemap.straight.sparse_batch import mount_of
-from pipemap.straight.sparse_geometry import rotation_from_travel
-from pipemap.straight.sparse_keyframes import KeyframeSelector
-from pipemap.straight.sparse_odometry import SparseOdometry
+from pipemap.straight.sparse.batch import mount_of
+from pipemap.straight.sparse.geometry import rotation_from_travel
+from pipemap.straight.sparse.keyframes import KeyframeSelector
+from pipemap.straight.sparse.odometry import SparseOdometry
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ import numpy as np
 from pipemap.camera import CameraModel
 from pipemap.camera.pinhole import PinholeCamera
 from pipemap.errors import PipemapError
-from pipemap.straight.sparse_geometry import R0
+from pipemap.straight.sparse.geometry import R0
 
 
 class Rectifier:

@@ -1,7 +1,7 @@
 """Unrolled wall images of a straight pipe (2010 report section 6.1, Figs. 15 and 17).
 
 The wall is a grid in wall coordinates (h along the axis, rho = r phi around it; the pipe frame
-and phi convention of pipemap.straight.sparse_geometry). Each image's gain-corrected pixels are
+and phi convention of pipemap.straight.sparse.geometry). Each image's gain-corrected pixels are
 carried onto the grid by its pose and the cylinder: every grid cell's wall point is projected
 into the image with the calibrated camera (distortion included) and sampled with cv2.remap; the
 unrolled value is the mean over the images that see the cell (the report's simple stitching,
@@ -22,7 +22,7 @@ import numpy as np
 
 from pipemap.camera import CameraModel
 from pipemap.errors import PipemapError
-from pipemap.straight.sparse_geometry import wall_coords, wall_from_coords, wall_points
+from pipemap.straight.sparse.geometry import wall_coords, wall_from_coords, wall_points
 
 
 @dataclass(frozen=True)

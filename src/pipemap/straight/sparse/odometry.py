@@ -5,7 +5,7 @@ keyframe (new indices for the rest), gets a one-degree-of-freedom pose (5.3.1), 
 from their point's mean cut from the point (mismatches that RANSAC let through), and adds its
 estimates to S(g). When the batch of the first `offset_batch_keyframes` keyframes is complete,
 their poses, the wall points and the axis are solved together (5.3.2 as a bundle adjustment,
-sparse_batch.py), from the report's square start and from the camera turned to its direction of
+sparse/batch.py), from the report's square start and from the camera turned to its direction of
 travel (any mount), and their estimates in S(g) recomputed; at `offset_long_keyframes` the batch
 runs again over every `offset_long_step`-th keyframe, kept where it knows the offset better, and
 where neither determines it, eqs. 45-49 run over them all. Every `refine_every` keyframes the
@@ -22,14 +22,14 @@ import numpy as np
 
 from pipemap.camera import CameraModel
 from pipemap.config import SparseSettings
-from pipemap.straight.sparse_batch import BatchResult, bundle_batch, bundle_window, mount_of
+from pipemap.straight.sparse.batch import BatchResult, bundle_batch, bundle_window, mount_of
 from pipemap.frontend.relpose import estimate_relative_pose
-from pipemap.straight.sparse_geometry import initial_pose, rotation_from_travel, wall_distance
-from pipemap.straight.sparse_keyframes import KeyframeLink, View
-from pipemap.straight.sparse_motion import (KeyframeState, estimate_one_dof, gate_outliers, refine_crawler,
+from pipemap.straight.sparse.geometry import initial_pose, rotation_from_travel, wall_distance
+from pipemap.straight.sparse.keyframes import KeyframeLink, View
+from pipemap.straight.sparse.motion import (KeyframeState, estimate_one_dof, gate_outliers, refine_crawler,
                                             refine_six_dof)
-from pipemap.straight.sparse_offset import OffsetBatch, optimise_offset
-from pipemap.straight.sparse_sums import WallSums
+from pipemap.straight.sparse.offset import OffsetBatch, optimise_offset
+from pipemap.straight.sparse.sums import WallSums
 
 _MAX_OFFSET_FRACTION = 0.9  # a batch that puts the camera nearer the wall than this has failed
 

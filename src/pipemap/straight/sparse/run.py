@@ -3,7 +3,7 @@
 Region Harris keypoints with SIFT descriptors are matched between keyframes, cleaned by five-point
 RANSAC, placed on the wall of a pipe of known radius, and the keyframe poses estimated against the
 S(g) sums: one degree of freedom per keyframe, a batch for the first camera's offset from the axis,
-six degrees of freedom in a sliding window (sparse_odometry.py has the schedule).
+six degrees of freedom in a sliding window (sparse/odometry.py has the schedule).
 
 Only perspective (pinhole) cameras, as in the report: a fisheye dataset is refused with a clear
 error (the fisheye pipeline handles those). World frame of the results = the first keyframe's
@@ -31,9 +31,9 @@ from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
 from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_verdict
 from pipemap.results import run_record, write_run_json
 from pipemap.straight.mount import Mount, require_wall_view
-from pipemap.straight.sparse_geometry import E_H
-from pipemap.straight.sparse_keyframes import KeyframeSelector
-from pipemap.straight.sparse_odometry import SparseOdometry
+from pipemap.straight.sparse.geometry import E_H
+from pipemap.straight.sparse.keyframes import KeyframeSelector
+from pipemap.straight.sparse.odometry import SparseOdometry
 from pipemap.straight.unroll import (UnrolledWall, centre_footprint_m, footprint, frame_images, unroll, unrolled_png,
                                      wall_sidecar)
 from pipemap.trajectory import Trajectory, write_tum

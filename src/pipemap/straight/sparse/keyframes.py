@@ -17,7 +17,7 @@ import numpy as np
 from pipemap.camera import CameraModel
 from pipemap.config import SparseSettings
 from pipemap.frontend.relpose import estimate_relative_pose
-from pipemap.straight.sparse_features import Keypoints, detect, match
+from pipemap.straight.sparse.features import Keypoints, detect, match
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from scipy.sparse import csr_matrix
 
 from pipemap.camera import CameraModel
 from pipemap.solvers import levenberg_marquardt, mad_sigma
-from pipemap.straight.sparse_geometry import E_H, wall_offset_jacobian
+from pipemap.straight.sparse.geometry import E_H, wall_offset_jacobian
 
 
 @dataclass(frozen=True)

@@ -21,8 +21,8 @@ import numpy as np
 from pipemap.geometry.rotations import exp_so3
 from pipemap.geometry.se3 import retract
 from pipemap.solvers import levenberg_marquardt, mad_sigma
-from pipemap.straight.sparse_geometry import E_H, wall_coords, wall_offset_jacobian, wall_points
-from pipemap.straight.sparse_sums import WallSums
+from pipemap.straight.sparse.geometry import E_H, wall_coords, wall_offset_jacobian, wall_points
+from pipemap.straight.sparse.sums import WallSums
 
 
 @dataclass

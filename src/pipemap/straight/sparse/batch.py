@@ -1,6 +1,6 @@
 """The initial batch of the sparse VO as a bundle adjustment on the wall (2010 report 5.3.2, generalised).
 
-The report's batch (eqs. 45-49, sparse_offset.py) holds every keyframe of the batch at the nominal
+The report's batch (eqs. 45-49, sparse/offset.py) holds every keyframe of the batch at the nominal
 rotation R0 and a common offset (C_X, C_Y), and lets only C_X, C_Y and the heights h_a move. The
 offset is read from the foreshortening of the wall: how the image flow varies across the image
 with the distance to the curved wall. With a wide lens close to a small pipe (the report's 6-inch
@@ -39,7 +39,7 @@ from pipemap.camera import CameraModel
 from pipemap.config import SparseSettings
 from pipemap.geometry.cylinder import Cylinder
 from pipemap.solvers.schur import solve_damped
-from pipemap.straight.sparse_geometry import E_H, wall_points
+from pipemap.straight.sparse.geometry import E_H, wall_points
 
 _S = SparseSettings()  # the defaults are the settings' own
 
