@@ -71,7 +71,6 @@ class NetworkResult:
     straight: StraightResult  # the VO's own figures: its sections, windows, keyframe image indices
     map: PipeMap  # keyframes, poses and points after the tee model and loop closure, sections, junctions
     seconds: dict
-    wall_pieces: list[dict]  # run.json "wall_pieces": the straight pieces of wall the maps sample
     joins: list = field(default_factory=list)  # JoinReport per junction (the tee-model solves)
     revisit: RevisitReport | None = None  # loop closure
     tees: list[MappedJunction] = field(default_factory=list)  # distinct tees in order of first passage
@@ -84,6 +83,10 @@ class NetworkResult:
     @property
     def junctions(self) -> list[MappedJunction]:
         return self.map.junctions
+
+    @property
+    def wall_pieces(self) -> list[dict]:  # run.json "wall_pieces"
+        return self.map.wall_pieces
 
 
 @dataclass
@@ -211,14 +214,14 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     poses = pipe_map.poses
     # World = the first keyframe's camera frame (x right, y down): 12 o'clock is its -y.
     up = -poses[0, :3, 1] if len(poses) else np.array([0.0, -1.0, 0.0])
-    pieces = wall_pieces(pipe_map.sections, junctions, up)
+    pipe_map.wall_pieces = wall_pieces(pipe_map.sections, junctions, up)
     route = float(np.sum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))) if len(poses) else 0.0
     quality = network_verdict(result.sections, result.windows, vo.keyframes, poses, pipe_map.sections, junctions,
                               joins, revisit, dataset.radius_m, settings.quality, route)
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
     seconds["loop_closure"] = revisit.seconds
-    return NetworkResult(result, pipe_map, seconds, pieces, joins, revisit, tees, quality)
+    return NetworkResult(result, pipe_map, seconds, joins, revisit, tees, quality)
 
 
 def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:

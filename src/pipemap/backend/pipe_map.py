@@ -1,17 +1,17 @@
 """The network pipeline's map: what the stages after the VO take and return.
 
 Keyframes with their poses, the scene points with their tracks and the keyframe that first saw each
-(its owner), the straight sections with their cylinders and bent axes, and the junctions with their
-centres. A correction found after some keyframe — the tee model's rigid move of the section beyond a
-tee, loop closure's corrected poses — is one method here, so every piece that hangs from a pose moves
-with it in the same way: points with their owner, sections and junctions with the keyframes they
-start at.
+(its owner), the straight sections with their cylinders and bent axes, the junctions with their
+centres, and at the end the wall pieces the appearance maps sample. A correction found after some
+keyframe — the tee model's rigid move of the section beyond a tee, loop closure's corrected poses — is
+one method here, so every piece that hangs from a pose moves with it in the same way: points with
+their owner, sections and junctions with the keyframes they start at.
 """
 
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -43,6 +43,7 @@ class PipeMap:
     owners: np.ndarray  # (M,) the keyframe that first saw each point
     sections: list[MappedSection]
     junctions: list[MappedJunction]
+    wall_pieces: list[dict] = field(default_factory=list)  # the straight pieces of wall the maps sample, once placed
 
     @classmethod
     def build(cls, keyframes: list[Keyframe], poses: np.ndarray, points: np.ndarray, point_tracks: np.ndarray,
@@ -57,7 +58,7 @@ class PipeMap:
         """A map whose arrays, sections and junctions can change without touching this one (the keyframes,
         which no stage changes, are shared)."""
         return PipeMap(self.keyframes, self.poses.copy(), self.points.copy(), self.point_tracks, self.owners,
-                       copy.deepcopy(self.sections), copy.deepcopy(self.junctions))
+                       copy.deepcopy(self.sections), copy.deepcopy(self.junctions), copy.deepcopy(self.wall_pieces))
 
     def move_after(self, k: int, T: np.ndarray) -> None:
         """Move everything from keyframe k + 1 on rigidly by T (4, 4, world -> world): the poses, the points
