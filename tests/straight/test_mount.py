@@ -157,3 +157,21 @@ def test_a_camera_that_sees_no_texture_is_a_clear_error(tmp_path):
     with pytest.raises(PipemapError, match="mount cannot be estimated") as err:
         estimate_mount(load_dataset(ds), Settings())
     assert "\n" not in str(err.value) and "dataset.yaml" in str(err.value)
+
+
+def test_the_wall_view_is_judged_by_the_bundle_fit_not_the_long_batch(tmp_path):
+    """The long batch (eqs. 45-49) holds every keyframe at one rotation, so its RMS also holds the crawler's
+    wobble (3.5 px on the 6-inch pipe at the report's frame density, whose bundle batch fits within 1 px): a
+    recording is refused only when the bundle batch itself cannot fit it."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from pipemap.straight.mount import Mount, require_wall_view
+
+    mount = Mount(np.eye(3), 90.0, 0.0, np.array([0.0, -0.025]), None, False, "long batch", (0, 1), 100, rms_px=3.5,
+                  observations=1000, fit_rms_px=0.6)
+    require_wall_view(SimpleNamespace(yaml_path=tmp_path / "dataset.yaml"), Settings(), mount)  # not refused
+    misfit = dataclasses.replace(mount, fit_rms_px=3.5)
+    ds = load_dataset(simulate("wall-camera-90", tmp_path / "w", width=96, height=72, frames=4, seed=1))
+    with pytest.raises(PipemapError, match=r"does not fit these images \(mount batch reprojection RMS 3.5 px"):
+        require_wall_view(ds, Settings(), misfit)

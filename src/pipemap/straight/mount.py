@@ -41,6 +41,7 @@ class Mount:
     frames: int  # images read to get it
     rms_px: float
     observations: int
+    fit_rms_px: float = np.nan  # the bundle batch's RMS: how well the straight-pipe model fits (odometry.BatchSummary)
 
     @classmethod
     def from_odometry(cls, odometry: SparseOdometry, frames: int) -> "Mount | None":
@@ -59,7 +60,8 @@ class Mount:
         return cls(rotation_from_travel(axis), float(np.degrees(values[0])), float(np.degrees(values[1])),
                    np.array(values[2:], float),
                    sigma, bool(off.determined), off.used, tuple(off.keyframes), frames,
-                   float(off.rms_px), int(off.observations))
+                   float(off.rms_px), int(off.observations),
+                   float(off.fit_rms_px if np.isfinite(off.fit_rms_px) else off.rms_px))
 
     def to_dict(self) -> dict:
         sd = [None] * 4 if self.sigma is None else [float(x) if np.isfinite(x) else None for x in self.sigma]
@@ -70,7 +72,7 @@ class Mount:
             "C_Y_m": float(self.offset_m[1]), "C_Y_sigma_m": sd[3],
             "determined": self.determined, "source": self.source,
             "keyframes": list(self.keyframes), "frames_read": self.frames,
-            "rms_px": self.rms_px, "observations": self.observations,
+            "rms_px": self.rms_px, "observations": self.observations, "fit_rms_px": self.fit_rms_px,
             "note": ("the camera in the pipe frame (report section 2), mean over the keyframes listed: angle between "
                      "its optical axis and the pipe axis (90 = square to the wall, less = turned towards the "
                      "travel), roll of the pipe axis in the image (0 = along image x, positive towards image y), "
@@ -123,14 +125,16 @@ def estimate_mount(dataset: Dataset, settings: Settings, gain_correct: bool = Tr
 
 
 def require_wall_view(dataset: Dataset, settings: Settings, mount: Mount | None) -> None:
-    """Refuse a recording the straight-pipe model does not fit at all: the mount's batch reprojects worse than
-    quality.rms_px's failed limit. The usual cause, a camera looking along the pipe, is measured and named."""
+    """Refuse a recording the straight-pipe model does not fit at all: the mount's bundle batch reprojects worse
+    than quality.rms_px's failed limit (not the long batch's eqs. 45-49, which hold every keyframe at one rotation
+    and so misfit the wobble of any crawler). The usual cause, a camera looking along the pipe, is measured and
+    named."""
     limit = settings.quality.rms_px[1]
-    if mount is None or not np.isfinite(mount.rms_px) or mount.rms_px <= limit:
+    if mount is None or not np.isfinite(mount.fit_rms_px) or mount.fit_rms_px <= limit:
         return
     from pipemap.view import ALONG, camera_view
 
-    misfit = (f"the straight-pipe model does not fit these images (mount batch reprojection RMS {mount.rms_px:.1f} "
+    misfit = (f"the straight-pipe model does not fit these images (mount batch reprojection RMS {mount.fit_rms_px:.1f} "
               f"px, limit {limit:g})")
     try:
         view = camera_view(dataset, settings)

@@ -52,6 +52,9 @@ class BatchSummary:
     mount_covariance: np.ndarray | None = None  # (4, 4) of `mount` (bundle only)
     keyframes: tuple[int, ...] = ()  # image indices of the keyframes the estimate came from
     sigma_fraction: float = np.inf  # hypot(sigma) / the distance to the wall along the optical axis (bundle only)
+    # How well the straight-pipe model fits the images: the bundle batch's RMS, kept when the long batch's estimate
+    # replaces its offset (eqs. 45-49 hold every keyframe at one rotation, so their RMS also holds the wobble)
+    fit_rms_px: float = np.nan
 
 
 class SparseOdometry:
@@ -121,7 +124,7 @@ class SparseOdometry:
         res = optimise_offset(batch, self.camera, self.radius, kfs[0].R, kfs[0].C[:2], heights)
         self.offset = BatchSummary("report", res.offset, res.rms_px, res.pairs,
                                    mount=mount_of(kfs[0].R, np.r_[res.offset, 0.0]),
-                                   keyframes=tuple(int(k.index) for k in kfs))
+                                   keyframes=tuple(int(k.index) for k in kfs), fit_rms_px=res.rms_px)
         self._replace_poses(kfs, [k.R for k in kfs], [np.r_[res.offset, h] for h in res.heights])
 
     def _travel(self, kfs: list[KeyframeState]) -> np.ndarray | None:
@@ -171,7 +174,7 @@ class SparseOdometry:
     def _summary(self, res: BatchResult, fraction: float, used: str, kfs: list[KeyframeState]) -> BatchSummary:
         return BatchSummary("bundle", res.offset, res.rms_px, res.observations, res.offset_sigma,
                             fraction <= self.sparse.offset_max_sigma, used, res.mount, res.mount_covariance,
-                            tuple(int(k.index) for k in kfs), fraction)
+                            tuple(int(k.index) for k in kfs), fraction, res.rms_px)
 
     def _bundle_options(self) -> dict:
         """The bundle batch's and the sliding bundle's settings."""

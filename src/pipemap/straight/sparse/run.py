@@ -106,7 +106,7 @@ def run_sparse(dataset_path, out_dir, settings: Settings | None = None,
         off = odometry.offset
         offset = np.asarray(C[0, :2], float)
         quality = straight_verdict(SPARSE_METHOD, idx, traj.timestamps, C[:, 2], mount, radius, settings.quality,
-                                   batch_rms_px=None if off is None else off.rms_px,
+                                   batch_rms_px=None if off is None else off.fit_rms_px,
                                    unconstrained=odometry.unconstrained)
         write_run_json(tmp, _run_record(dataset, settings, tracked, idx, C, mount, axis_origin, axis_dir, quality,
                                         seconds))
@@ -214,6 +214,7 @@ def _run_record(dataset: Dataset, settings: Settings, tracked: _FramePass, idx: 
                          "determined_by_batch": None if off is None else off.determined,
                          "source": "start" if off is None else off.used,
                          "batch_rms_px": None if off is None else off.rms_px,
+                         "fit_rms_px": None if off is None else off.fit_rms_px,
                          "batch_observations": None if off is None else off.observations},
         pipe_axis={"origin": axis_origin.tolist(), "direction": axis_dir.tolist(),
                    "frame": "first keyframe's camera frame"},
