@@ -13,7 +13,6 @@ carries the mount); only the camera centre moves.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +26,7 @@ from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
 from pipemap.footage import FootageLog
 from pipemap.frontend.tracks_io import write_frames_csv
-from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
+from pipemap.output import result_folder
 from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_verdict
 from pipemap.results import run_record, write_run_json
 from pipemap.straight.mount import Mount, estimate_mount
@@ -36,7 +35,7 @@ from pipemap.straight.scale import row_pixels_per_metre
 from pipemap.straight.sparse.features import flatten_light
 from pipemap.straight.sparse.geometry import R0, wall_distance
 from pipemap.straight.undistort import QUARTER, Rectifier, reduction_for_wall
-from pipemap.straight.unroll import centre_footprint_m, footprint, frame_images, unroll, unrolled_png, wall_sidecar
+from pipemap.straight.unroll import frame_images, unroll_poses, write_wall
 from pipemap.trajectory import Trajectory, write_tum
 
 DENSE_METHODS = ("dense-full-search", "dense-lk", "dense-hybrid")
@@ -274,19 +273,11 @@ def _write_unrolled(folder: Path, dataset: Dataset, view: _RectifiedView, idx: n
     else:
         R, offset = R0, np.array([0.0, radius - _wall_distance(dense, view.mount, radius)])
     C = np.column_stack([np.tile(offset, (len(idx), 1)), pos[:, 0]])
-    bounds = np.array([footprint(dataset.camera, R, c, radius) for c in C])
-    box = np.array([bounds[:, 0].min(), bounds[:, 1].max(), bounds[:, 2].min(), bounds[:, 3].max()])
-    mpp = dense.unrolled_px_m or centre_footprint_m(dataset.camera, R, C[0], radius)
-    mpp = max(mpp, max(box[1] - box[0], box[3] - box[2]) / (dense.unrolled_max_px - 1))
-    views = ((img, R, c) for img, c in zip(frame_images(dataset, idx, dense.gain_correct), C))
-    wall = unroll(views, dataset.camera, radius, box, mpp)
-    folder.mkdir()
-    atomic_write_bytes(folder / "dense_000.png", unrolled_png(wall))
-    side = wall_sidecar(wall, radius, R, C[0])
-    side.update(image="dense_000.png", method=method, frames_stitched=len(idx),
-                grey="the mean of the frames stitched (at least dense.stitch_min_shift_px apart along the pipe) that "
-                     "see the wall, stretched to 1..255; 0 = unseen")
-    atomic_write_text(folder / "dense_000.json", json.dumps(side, indent=2) + "\n")
+    wall = unroll_poses(frame_images(dataset, idx, dense.gain_correct), dataset.camera, radius,
+                        np.broadcast_to(R, (len(idx), 3, 3)), C, dense.unrolled_px_m, dense.unrolled_max_px)
+    write_wall(folder, "dense_000", wall, radius, R, C[0], method=method, frames_stitched=len(idx),
+               grey="the mean of the frames stitched (at least dense.stitch_min_shift_px apart along the pipe) "
+               "that see the wall, stretched to 1..255; 0 = unseen")
 
 
 def _run_record(method: str, dataset: Dataset, settings: Settings, view: _RectifiedView, idx: np.ndarray,

@@ -15,6 +15,7 @@ image of the camera's own view, where wall markings read the right way round).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Iterable, Iterator
 
 import cv2
@@ -119,9 +120,31 @@ def wall_sidecar(wall: UnrolledWall, radius: float, R_first: np.ndarray, C_first
         seen_fraction=float(np.isfinite(wall.image).mean()))
 
 
-def unrolled_png(wall: UnrolledWall) -> bytes:
-    """The PNG of `wall` as every method shows it: rows flipped, the wall seen from inside."""
-    return to_png(wall.image[::-1])
+def unroll_poses(images: Iterable[np.ndarray], camera: CameraModel, radius: float, R: np.ndarray, C: np.ndarray,
+                 px_m: float | None, max_px: int) -> UnrolledWall:
+    """The mean of `images` seen from poses R (K, 3, 3), C (K, 3) in the pipe frame, on a grid covering what they
+    see at px_m metres per pixel (None: one camera pixel at the first pose's principal point), coarser where the
+    longest side would exceed max_px."""
+    bounds = np.array([footprint(camera, r, c, radius) for r, c in zip(R, C)])
+    box = np.array([bounds[:, 0].min(), bounds[:, 1].max(), bounds[:, 2].min(), bounds[:, 3].max()])
+    mpp = px_m or centre_footprint_m(camera, R[0], C[0], radius)
+    mpp = max(mpp, max(box[1] - box[0], box[3] - box[2]) / (max_px - 1))
+    return unroll(zip(images, R, C), camera, radius, box, mpp)
+
+
+def write_wall(folder: Path, stem: str, wall: UnrolledWall, radius: float, R_first: np.ndarray, C_first: np.ndarray,
+               **details) -> None:
+    """<stem>.png (rows flipped: the wall seen from inside, as every method shows it) and <stem>.json, the
+    common sidecar (wall_sidecar) with the method's `details`, into `folder`, which it creates."""
+    import json
+
+    from pipemap.output import atomic_write_bytes, atomic_write_text
+
+    folder.mkdir()
+    atomic_write_bytes(folder / f"{stem}.png", to_png(wall.image[::-1]))
+    side = wall_sidecar(wall, radius, R_first, C_first)
+    side.update(image=f"{stem}.png", **details)
+    atomic_write_text(folder / f"{stem}.json", json.dumps(side, indent=2) + "\n")
 
 
 def to_png(image: np.ndarray) -> bytes:

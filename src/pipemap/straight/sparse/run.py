@@ -13,7 +13,6 @@ run.json and the unrolled image's sidecar give the estimated pipe axis in that f
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,15 +26,14 @@ from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
 from pipemap.footage import FootageLog
 from pipemap.frontend.tracks_io import write_frames_csv
-from pipemap.output import atomic_write_bytes, atomic_write_text, result_folder
+from pipemap.output import result_folder
 from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_verdict
 from pipemap.results import run_record, write_run_json
 from pipemap.straight.mount import Mount, require_wall_view
 from pipemap.straight.sparse.geometry import E_H
 from pipemap.straight.sparse.keyframes import KeyframeSelector
 from pipemap.straight.sparse.odometry import SparseOdometry
-from pipemap.straight.unroll import (UnrolledWall, centre_footprint_m, footprint, frame_images, unroll, unrolled_png,
-                                     wall_sidecar)
+from pipemap.straight.unroll import UnrolledWall, frame_images, unroll_poses, write_wall
 from pipemap.trajectory import Trajectory, write_tum
 
 SPARSE_METHOD = "sparse-cylinder"
@@ -183,10 +181,9 @@ def _write_keyframes_and_wall(tmp: Path, dataset: Dataset, tracked: _FramePass, 
     labels = {i: "straight" for i in tracked.read}
     labels.update({i: "repeated" for i in tracked.log.repeated})
     write_frames_csv(tmp / "frames.csv", len(dataset), idx, labels)
-    (tmp / "unrolled").mkdir()
-    atomic_write_bytes(tmp / "unrolled" / "sparse_000.png", unrolled_png(wall))
-    side = _sidecar(wall, dataset.radius_m, R_first, C_first, len(idx))
-    atomic_write_text(tmp / "unrolled" / "sparse_000.json", json.dumps(side, indent=2) + "\n")
+    write_wall(tmp / "unrolled", "sparse_000", wall, dataset.radius_m, R_first, C_first, method=SPARSE_METHOD,
+               keyframes=len(idx), grey="the mean of the gain-corrected keyframes that see the wall (report section "
+               "6.1), stretched to 1..255; 0 = unseen")
 
 
 def _run_record(dataset: Dataset, settings: Settings, tracked: _FramePass, idx: np.ndarray, C: np.ndarray,
@@ -229,18 +226,5 @@ def _fmt(v) -> str:
 
 
 def _unrolled(dataset: Dataset, camera, radius: float, idx, R, C, sp) -> UnrolledWall:
-    bounds = np.array([footprint(camera, r, c, radius) for r, c in zip(R, C)])
-    lo, hi = bounds.min(axis=0), bounds.max(axis=0)
-    box = np.array([lo[0], hi[1], lo[2], hi[3]])
-    mpp = sp.unrolled_px_m or centre_footprint_m(camera, R[0], C[0], radius)
-    mpp = max(mpp, max(box[1] - box[0], box[3] - box[2]) / (sp.unrolled_max_px - 1))
-    views = ((img, r, c) for img, r, c in zip(frame_images(dataset, idx, sp.gain_correct), R, C))
-    return unroll(views, camera, radius, box, mpp)
-
-
-def _sidecar(wall: UnrolledWall, radius: float, R_first: np.ndarray, C_first: np.ndarray, keyframes: int) -> dict:
-    side = wall_sidecar(wall, radius, R_first, C_first)
-    side.update(image="sparse_000.png", method=SPARSE_METHOD, keyframes=keyframes,
-                grey="the mean of the gain-corrected keyframes that see the wall (report section 6.1), stretched to "
-                     "1..255; 0 = unseen")
-    return side
+    return unroll_poses(frame_images(dataset, idx, sp.gain_correct), camera, radius, R, C, sp.unrolled_px_m,
+                        sp.unrolled_max_px)
