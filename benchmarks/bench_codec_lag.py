@@ -2,11 +2,11 @@
 frames before encoding (the image-conditions issue: H.264 footage maps short).
 
     python benchmarks/bench_codec_lag.py [--frames 200] [--crf 28] [--preset fisheye-straight] [--seed 1]
-                                         [--blur 0] [--data /tmp/pipemap-bench-lag]
+                                         [--gap 7] [--blur 0] [--data /tmp/pipemap-bench-lag]
 
 Renders the preset's first frames as clean PNGs (cached under --data), encodes them with libx264 at --crf (or,
 with --blur S, replaces the codec by a Gaussian blur of sigma S px plus independent noise, as a control), and
-for corners taken every 7th frame tracks each one over the next 7 frames with the front end's anchor match
+for corners taken every --gap frames tracks each one over the next --gap frames with the front end's anchor match
 (frontend/anchor.py: the patch where the corner was first seen, warped into the later frame) on the lighting-
 flattened images, four ways: clean patch into clean frame (the reference), clean into decoded, decoded into
 clean and decoded into decoded. Prints and writes (benchmarks/results/codec_lag.json) the mean displacement of
@@ -32,7 +32,6 @@ from pipemap.frontend.harris import flatten_lighting
 from pipemap.sim.simulate import simulate
 
 PATCH = 11
-GAP = 7
 WAYS = ("clean->decoded", "decoded->clean", "decoded->decoded")
 
 
@@ -65,18 +64,18 @@ def flattened(image: np.ndarray) -> np.ndarray:
     return flatten_lighting(image.astype(np.float32), 4.0, 0.0)[0]
 
 
-def measure(clean: list[np.ndarray], coded: list[np.ndarray]) -> dict:
+def measure(clean: list[np.ndarray], coded: list[np.ndarray], gap: int) -> dict:
     h, w = clean[0].shape
-    lag = {(way, j): [] for way in WAYS for j in range(1, GAP + 1)}
-    for a in range(10, len(clean) - GAP - 1, GAP):
-        images = {"clean": [flattened(clean[a + j]) for j in range(GAP + 1)],
-                  "decoded": [flattened(coded[a + j]) for j in range(GAP + 1)]}
+    lag = {(way, j): [] for way in WAYS for j in range(1, gap + 1)}
+    for a in range(10, len(clean) - gap - 1, gap):
+        images = {"clean": [flattened(clean[a + j]) for j in range(gap + 1)],
+                  "decoded": [flattened(coded[a + j]) for j in range(gap + 1)]}
         start = cv2.goodFeaturesToTrack(clean[a], 400, 0.01, 8).reshape(-1, 2)
         r = np.hypot(start[:, 0] - w / 2, start[:, 1] - h / 2)
         start = start[(r > 70) & (r < 210)]  # the wall ring of the fisheye, away from the dark far end and the rim
         anchors = {s: anchor_templates(images[s][0], start, PATCH) for s in images}
         now = start.copy()
-        for j in range(1, GAP + 1):
+        for j in range(1, gap + 1):
             guess, _, _ = cv2.calcOpticalFlowPyrLK(clean[a + j - 1], clean[a + j], now.astype(np.float32), None,
                                                    winSize=(21, 21))
             found = {}
@@ -94,13 +93,14 @@ def measure(clean: list[np.ndarray], coded: list[np.ndarray]) -> dict:
             for way in WAYS:
                 s1, s2 = way.split("->")
                 lag[way, j].append((((found[s1, s2][1] - reference) * along).sum(axis=1))[ok])
-    return {way: {j: float(np.concatenate(lag[way, j]).mean()) for j in range(1, GAP + 1)} for way in WAYS}
+    return {way: {j: float(np.concatenate(lag[way, j]).mean()) for j in range(1, gap + 1)} for way in WAYS}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--crf", type=float, default=28.0)
+    ap.add_argument("--gap", type=int, default=7, help="frames each corner is followed from its anchor frame")
     ap.add_argument("--blur", type=float, default=0.0, help="a Gaussian blur of this sigma (px) plus noise instead "
                     "of the codec (a control)")
     ap.add_argument("--preset", default="fisheye-straight")
@@ -110,12 +110,13 @@ def main() -> None:
     args = ap.parse_args()
     Path(args.data).mkdir(parents=True, exist_ok=True)
     clean = clean_frames(args)
-    lag = measure(clean, degraded(clean, args))
+    lag = measure(clean, degraded(clean, args), args.gap)
+    shown = [j for j in (1, 2, 3, 5, 7, 10, 14, 20, 28, 40) if j <= args.gap]
     label = f"blur {args.blur:g} px + noise" if args.blur > 0 else f"H.264 CRF {args.crf:g}"
     print(f"{label}: mean displacement along the motion against clean->clean (px; negative = behind)")
-    print("gap (frames) " + " ".join(f"{j:>8d}" for j in range(1, GAP + 1)))
+    print("gap (frames)    " + " ".join(f"{j:>8d}" for j in shown))
     for way in WAYS:
-        print(f"{way:<16s}" + " ".join(f"{lag[way][j]:+8.4f}" for j in range(1, GAP + 1)))
+        print(f"{way:<16s}" + " ".join(f"{lag[way][j]:+8.4f}" for j in shown))
     summary = {"benchmark": "codec_lag", "machine": platform.platform(), "cpus": os.cpu_count(),
                "degradation": label, "preset": args.preset, "frames": len(clean), "seed": args.seed,
                "lag_px": {way: {str(j): v for j, v in lag[way].items()} for way in WAYS}}
