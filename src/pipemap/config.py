@@ -185,6 +185,18 @@ class StraightVOSettings(_Section):
                                              "which shortens the scale")
 
 
+class EvidenceSettings(_Section):
+    """Which junction passes are junctions (backend/evidence.py): where the axis runs straight on, a side
+    branch's wall must show in the points around the pass (backend/side_opening.py), and places it."""
+
+    opening_min_points: int = Field(30, gt=3, description="points on the branch wall that show a side opening")
+    opening_reach_radii: float = Field(2.0, gt=0, description="branch-wall points are looked for up to this many "
+                                       "pipe radii beyond the through pipe's wall, and as far along it either side "
+                                       "of the junction frames' centre (plus one radius)")
+    opening_max_sigma_radii: float = Field(0.02, gt=0, description="the opening places the tee only when its centre "
+                                           "along the pipe is known to this fraction of the radius (1 sigma)")
+
+
 class LoopClosureSettings(_Section):
     """Loop closure by pose-graph optimisation (fisheye paper III-E)."""
 
@@ -402,6 +414,7 @@ class Settings(_Section):
     classification: ClassificationSettings = ClassificationSettings()
     bundle: BundleSettings = BundleSettings()
     straight_vo: StraightVOSettings = StraightVOSettings()
+    evidence: EvidenceSettings = EvidenceSettings()
     loop_closure: LoopClosureSettings = LoopClosureSettings()
     appearance: AppearanceSettings = AppearanceSettings()
     dense: DenseSettings = DenseSettings()

@@ -23,6 +23,7 @@ from typing import Callable
 import numpy as np
 import yaml
 
+from pipemap.backend.evidence import DroppedPass, weigh_junction_evidence
 from pipemap.backend.join import join_sections
 from pipemap.backend.network_map import (
     MappedJunction,
@@ -75,6 +76,7 @@ class NetworkResult:
     revisit: RevisitReport | None = None  # loop closure
     tees: list[MappedJunction] = field(default_factory=list)  # distinct tees in order of first passage
     quality: RunVerdict | None = None  # the sections' self-checks
+    dropped: list[DroppedPass] = field(default_factory=list)  # junction passes with no turn and no side opening
 
     @property
     def sections(self) -> list[MappedSection]:
@@ -201,6 +203,7 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     joins = []
     if settings.bundle.tee_model:
         pipe_map, joins = join_sections(pipe_map, result.active, dataset.camera, dataset.radius_m, settings)
+    pipe_map, dropped = weigh_junction_evidence(pipe_map, settings)
     revisit = RevisitReport("no revisit" if settings.loop_closure.enabled else "disabled")
     if settings.loop_closure.enabled and len(pipe_map.junctions) > 1:
         def image_of(k: int) -> np.ndarray:
@@ -221,7 +224,7 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
     seconds["loop_closure"] = revisit.seconds
-    return NetworkResult(result, pipe_map, seconds, joins, revisit, tees, quality)
+    return NetworkResult(result, pipe_map, seconds, joins, revisit, tees, quality, dropped)
 
 
 def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
@@ -261,8 +264,10 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
         sections=[s.to_dict() for s in result.sections],
         straight_sections=[m.to_dict() for m in net.sections],
         junction_passes=[dict(j.to_dict(), method=j.method, angle_deg=round(j.angle_deg, 3),
-                              axes_gap_m=round(j.gap_m, 5), first_keyframe=j.first, last_keyframe=j.last)
+                              axes_gap_m=round(j.gap_m, 5), first_keyframe=j.first, last_keyframe=j.last,
+                              **({} if j.opening is None else {"side_opening": j.opening}))
                          for j in net.junctions],
+        dropped_junction_passes=[d.to_dict() for d in net.dropped],
         junction_clusters=[list(c) for c in front.classes.clusters],
         wall_pieces=net.wall_pieces,
         appearance=maps,

@@ -72,9 +72,11 @@ class MappedJunction:
     method: str  # "axes" | "straight-through" | "path" | "tee-model"
     gap_m: float = float("nan")  # closest-approach distance of the two axes
     through: str | None = None  # which side's pipe runs on through the tee ("red" = before, "blue" = after)
+    type: str = "tee"  # "tee" | "cross" (a straight-through pass that found openings on both sides)
+    opening: dict | None = None  # the side opening that placed a straight-through pass (SideOpening.to_dict)
 
     def to_dict(self) -> dict:
-        return {"id": self.id, "type": "tee", "centroid": [round(float(v), 6) for v in self.centroid],
+        return {"id": self.id, "type": self.type, "centroid": [round(float(v), 6) for v in self.centroid],
                 "keyframe": int(self.keyframe)}
 
 
@@ -260,8 +262,13 @@ def name_junctions(junctions: list[MappedJunction], radius: float, same_radii: f
         first = passes[0]
         out.append(MappedJunction(first.id, np.mean([j.centroid for j in passes], axis=0), first.keyframe, first.first,
                                   first.last, first.before, first.after, first.angle_deg, first.method, first.gap_m,
-                                  first.through))
+                                  first.through, _kind(passes), first.opening))
     return out
+
+
+def _kind(passes: list[MappedJunction]) -> str:
+    """A junction seen as a cross on any pass is a cross (a turning pass sees only one of its branches)."""
+    return "cross" if any(j.type == "cross" for j in passes) else passes[0].type
 
 
 def wall_pieces(mapped: list[MappedSection], junctions: list[MappedJunction], up) -> list[dict]:

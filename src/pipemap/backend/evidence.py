@@ -1,0 +1,82 @@
+"""Which junction passes are junctions: the axis turns there, or a branch opens beside the camera's path.
+
+The classification labels frames by how the dark far end of the pipe looks, so a distant tee ahead, or
+a moment of flicker, makes a cluster of junction frames where nothing branches; and where the robot
+drives straight through a real tee, the two straight sections' axes run on in one line and cannot say
+where along it the tee is (`network_map` could only take the middle of the junction frames, which start
+earlier before a tee than they end after it). So a pass whose axes turn by at least
+STRAIGHT_THROUGH_DEG is a junction placed where they meet (or by the tee model); any other pass is one
+only when the points the camera saw around it show a side branch (`side_opening`), which also places it;
+without one it is dropped and reported, and the straight sections either side stay what they are.
+A pass with a straight section on one side only (the run starts or ends in it) is kept as it is.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipemap.backend.network_map import STRAIGHT_THROUGH_DEG, MappedJunction, section_points
+from pipemap.backend.pipe_map import PipeMap
+from pipemap.backend.side_opening import fit_side_opening
+from pipemap.config import Settings
+
+
+@dataclass
+class DroppedPass:
+    """A junction pass with no branch or bend to show for it."""
+
+    id: str
+    first: int  # keyframes of its junction section
+    last: int
+    angle_deg: float
+    reason: str
+
+    def to_dict(self) -> dict:
+        return {"id": self.id, "first_keyframe": self.first, "last_keyframe": self.last,
+                "angle_deg": round(self.angle_deg, 3), "reason": self.reason}
+
+
+def _opening(pipe_map: PipeMap, j: MappedJunction, order: np.ndarray, tids: np.ndarray, settings: Settings):
+    """The side opening near a straight-through pass, from the points seen around it."""
+    by_number = {m.number: m for m in pipe_map.sections}
+    red, blue = by_number.get(j.before), by_number.get(j.after)
+    through = next((c for c in (red.end if red else None, blue.start if blue else None,
+                                red.cylinder if red else None) if c is not None), None)
+    if through is None:
+        return None
+    b, e = settings.bundle, settings.evidence
+    lo = max(0, j.first - b.tee_hold_keyframes)
+    hi = min(len(pipe_map.keyframes) - 1, j.last + b.tee_attach_keyframes)
+    points = pipe_map.points[order[section_points(pipe_map.keyframes, lo, hi, tids)]]
+    return fit_side_opening(points, through, float(through.axial(j.centroid)), huber_m=b.huber_m, mad_k=b.mad_k,
+                            outlier_passes=b.outlier_passes, reach_radii=e.opening_reach_radii,
+                            min_points=e.opening_min_points, max_sigma_m=e.opening_max_sigma_radii * through.radius)
+
+
+def weigh_junction_evidence(pipe_map: PipeMap, settings: Settings) -> tuple[PipeMap, list[DroppedPass]]:
+    """The map with every straight-through pass placed from its side opening, and without the passes that
+    show neither a turn nor an opening (returned, with why)."""
+    out = pipe_map.copy()
+    order = np.argsort(out.point_tracks)
+    tids = out.point_tracks[order]
+    kept, dropped = [], []
+    for j in out.junctions:
+        if j.before is None or j.after is None or not j.angle_deg < STRAIGHT_THROUGH_DEG:
+            kept.append(j)
+            continue
+        opening = _opening(out, j, order, tids, settings)
+        if opening is None:
+            dropped.append(DroppedPass(j.id, j.first, j.last, j.angle_deg, "the axis runs straight on and no side "
+                                       "opening shows in the points around it: not a junction"))
+            continue
+        j.centroid, j.method, j.type, j.opening = opening.centre, "side-opening", opening.kind, opening.to_dict()
+        centres = out.poses[j.first:j.last + 1, :3, 3]
+        j.keyframe = j.first + int(np.argmin(np.linalg.norm(centres - j.centroid, axis=1)))
+        kept.append(j)
+    out.junctions = kept
+    return out, dropped
+
+
+__all__ = ["DroppedPass", "weigh_junction_evidence"]
