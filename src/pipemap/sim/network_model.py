@@ -164,16 +164,21 @@ def straight_scene(length: float, radius: float, *, piece_length: float | None =
 
 
 def tee_loop_scene(corners: np.ndarray, radius: float, *, stub_length: float, piece_length: float = 3.0,
-                   sag_m: float = 0.0, misalign_m: float = 0.0, seed: int = 0) -> PipeScene:
+                   sag_m: float = 0.0, misalign_m: float = 0.0, seed: int = 0, main_out=()) -> PipeScene:
     """A closed loop through tees T1..Tn at `corners` (n, 3), in that order.
 
     Side k (run "S{k}") joins T{k} to T{k+1}. At each tee the incoming side continues straight
     as the main pipe into a closed stub (run "B{k}", `stub_length` beyond the centroid) and the
-    outgoing side is the branch. Joints inside a side sag and are misaligned; the pieces next to
+    outgoing side is the branch; at the tees numbered in `main_out` (1-based) it is the other way
+    round: the outgoing side is the main pipe, its stub points back against it, and the incoming
+    side arrives along the branch. Joints inside a side sag and are misaligned; the pieces next to
     a tee stay exactly on the nominal axes so that the axes meet at the centroid.
     """
     c = np.asarray(corners, float)
     n = len(c)
+    flipped = {int(k) for k in main_out}
+    if not flipped <= set(range(1, n + 1)):
+        raise PipemapError(f"main_out names tees {sorted(flipped)}, the loop has T1..T{n}")
     rng = np.random.default_rng(seed)
     pipes: list[Pipe] = []
     runs: dict[str, np.ndarray] = {}
@@ -183,11 +188,15 @@ def tee_loop_scene(corners: np.ndarray, radius: float, *, stub_length: float, pi
         runs[f"S{k + 1}"] = v
         pipes += run_pipes(f"S{k + 1}", v, radius, False, False)
     for k in range(n):
-        # the stub continues the incoming side's last piece exactly, so the main pipe is one
+        # the stub continues the main pipe's piece at the tee exactly, so the main pipe is one
         # straight cylinder through the tee (no wedge between the two)
-        incoming = runs[f"S{(k - 1) % n + 1}"]
         here = c[k]
-        u = (incoming[-1] - incoming[-2]) / np.linalg.norm(incoming[-1] - incoming[-2])
+        if k + 1 in flipped:
+            outgoing = runs[f"S{k + 1}"]
+            u = (outgoing[0] - outgoing[1]) / np.linalg.norm(outgoing[0] - outgoing[1])
+        else:
+            incoming = runs[f"S{(k - 1) % n + 1}"]
+            u = (incoming[-1] - incoming[-2]) / np.linalg.norm(incoming[-1] - incoming[-2])
         v = np.stack([here, here + stub_length * u])
         runs[f"B{k + 1}"] = v
         pipes += run_pipes(f"B{k + 1}", v, radius, False, True)

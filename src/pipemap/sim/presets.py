@@ -11,6 +11,9 @@ for, simulate() keeps the first N frames of the route at the same spacing.
   looking up at the wall with image x along the pipe (report section 5.3), 4 LEDs; routes
   "forward" and "forward-reverse" with the report's frame counts.
 - fisheye-straight: one straight 400 mm pipe seen by the fisheye.
+- tee-pass-loop: the 3.0 m x 2.2 m, 300 mm tee loop of issue 20 at 640x480 fisheye; route "A" starts in T1's
+  stub, passes T1 straight through, turns at T4, T3, T2, comes back to T1 head-on along its branch and turns
+  into the stub; route "B" passes T1 and T2 straight through (from stub to stub).
 - demo-loop: a small 2 m x 1.5 m tee loop at 640x480, fast; route "A" drives the lap and on
   past its start along the first side, so the run revisits it (loop closure).
 - cctv-loop / cctv-straight: a sewer crawler's forward-looking CCTV camera (100 deg, barrel
@@ -206,6 +209,30 @@ def _demo_loop(width, height, route, seed):
     return s
 
 
+# The reviewer's tee-pass scene (issue 20): a 3.0 m x 2.2 m loop of 300 mm pipe, a tee at each corner, 1 m stubs.
+# T1's main pipe is side T4-T1 with its stub B1 beyond T1 (-y); T2's main pipe is side T2-T3 with its stub B2
+# beyond T2 (-y too), so that a route can leave T1's stub straight through T1 and end straight through T2.
+TEE_PASS_CORNERS = np.array([[0, 0, 0], [3.0, 0, 0], [3.0, 2.2, 0], [0, 2.2, 0]], float)
+_TEE_PASS_LEGS = {
+    # start in B1, T1 straight through, turn at T4, T3, T2, back to T1 head-on along its branch, turn into B1
+    "A": [("B1", True), ("S4", True), ("S3", True), ("S2", True), ("S1", True), ("B1", False)],
+    # start in B1, T1 straight through, turn at T4 and T3, T2 straight through into its stub B2
+    "B": [("B1", True), ("S4", True), ("S3", True), ("S2", True), ("B2", False)],
+}
+
+
+def _tee_pass_loop(width, height, route, seed, *, stub=1.0, start_back=0.75, end_in=0.5):
+    """Routes that pass tees straight through and approach one along its stem; the drive starts
+    `start_back` before T1 in its stub and ends `end_in` into the last stub."""
+    scene = tee_loop_scene(TEE_PASS_CORNERS, 0.15, stub_length=stub, piece_length=1.0, sag_m=0.002, misalign_m=0.001,
+                           seed=seed, main_out=(2,))
+    poly = route_polyline(scene, _TEE_PASS_LEGS[route])
+    drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", turn_radius_m=0.15, start_m=stub - start_back,
+                  end_m=-(stub - end_in))
+    return Setup("tee-pass-loop", scene, fisheye_camera(width or 640, height or 480), poly, drive,
+                 Appearance(mm_per_px=1.0), 7.5, notes={"straight_through": ["T1"] if route == "A" else ["T1", "T2"]})
+
+
 def _fisheye_straight(width, height, route, seed):
     scene = straight_scene(6.0, 0.2, piece_length=2.0, sag_m=0.003, misalign_m=0.0015, seed=seed)
     drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", start_m=0.5, end_m=5.0,
@@ -335,6 +362,9 @@ register_preset("paper-straight-16in", "2010 report pipe 2: 4 m x 387.56 mm, per
 register_preset("fisheye-straight", "one straight 6 m x 400 mm pipe, 190 deg fisheye 1280x960",
                 ("forward", "forward-reverse"), _fisheye_straight)
 register_preset("demo-loop", "small 2 m x 1.5 m tee loop, fisheye 640x480 (fast)", ("A", "B"), _demo_loop)
+register_preset("tee-pass-loop", "3.0 m x 2.2 m loop of 300 mm pipe, a tee at each corner, fisheye 640x480: "
+                "A leaves T1's stub straight through T1, turns at T4, T3, T2, meets T1 head-on along its branch and "
+                "turns into the stub; B passes T1 and T2 straight through", ("A", "B"), _tee_pass_loop)
 register_preset("cctv-loop", "sewer crawler's forward-looking CCTV (100 deg, barrel distortion, 640x480; 720x576 "
                 "keeps the view) in a 3.0 m x 2.2 m loop of 300 mm pipe with a tee at each corner", ("A", "B"),
                 _cctv_loop)
