@@ -152,6 +152,27 @@ class PipeNetwork:
     def visited_junctions(self) -> list[Junction]:
         return [self.junction(j) for j in self.visits]
 
+    def straight_pieces(self, max_sagitta_m: float = 1e-4) -> tuple[Segment, ...]:
+        """The segments with every arc replaced by chords whose mid-points lie within `max_sagitta_m` of it
+        (for code that knows only cylinders). Chords overlap by r tan(kink) at their joints, so that their
+        union has no wedge-shaped gap on the bend's outside; their walls lie within about
+        max_sagitta_m + r kink^2 of the torus."""
+        out: list[Segment] = []
+        for s in self.segments:
+            if not s.is_arc:
+                out.append(s)
+                continue
+            step = 2 * np.arccos(max(0.0, 1 - max_sagitta_m / s.bend_radius))
+            n = max(1, int(np.ceil(s.angle / step)))
+            pts, _ = s.axis_points(np.linspace(0.0, s.length, n + 1))
+            over = self.radius_m * np.tan(s.angle / n)
+            for k in range(n):
+                u = (pts[k + 1] - pts[k]) / np.linalg.norm(pts[k + 1] - pts[k])
+                a = pts[k] - (over * u if k > 0 else 0.0)
+                b = pts[k + 1] + (over * u if k < n - 1 else 0.0)
+                out.append(Segment(f"{s.id}#{k}", a, b))
+        return tuple(out)
+
     def to_dict(self) -> dict:
         d = {
             "format": FORMAT,

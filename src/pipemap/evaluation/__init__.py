@@ -17,6 +17,7 @@ from pipemap.evaluation.metrics import (
     AteResult,
     DistanceRow,
     DistanceTravelled,
+    ElbowRow,
     JunctionPair,
     JunctionTable,
     associate,
@@ -31,6 +32,7 @@ from pipemap.evaluation.tables import print_tables, tables
 __all__ = [
     "Alignment",
     "AteResult",
+    "ElbowRow",
     "EstimatedJunction",
     "DistanceRow",
     "DistanceTravelled",

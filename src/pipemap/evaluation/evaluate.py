@@ -284,7 +284,7 @@ def _straight_run(network: PipeNetwork, est: Trajectory, gt: Trajectory, notes: 
 def straight_axis(network: PipeNetwork, max_bend_deg: float = 2.0) -> np.ndarray | None:
     """The axis of a network that is one straight pipe, possibly built of several slightly sagging or
     misaligned pieces joined end to end; None for a network with junctions or bends."""
-    if network.junctions or not network.segments:
+    if network.junctions or not network.segments or any(seg.is_arc for seg in network.segments):
         return None
     first, last = network.segments[0], network.segments[-1]
     axis = last.end - first.start
@@ -303,10 +303,16 @@ def _junctions(network: PipeNetwork, path: Path, notes: list[str]) -> JunctionTa
     if not path.exists():
         notes.append("the result has no junctions.yaml: junction table skipped")
         return None
-    ids, centroids = read_junctions(path)
+    estimated = read_junction_list(path)
+    ids = [j.id for j in estimated]
+    centroids = np.asarray([j.centroid for j in estimated], float).reshape(-1, 3)
     # Without a recorded route, the network's own junction order stands in for the visit order.
     visits = network.visits or tuple(j.id for j in network.junctions)
-    table = junction_table(ids, centroids, visits, {j.id: j.centroid for j in network.junctions})
+    table = junction_table(ids, centroids, visits, {j.id: j.centroid for j in network.junctions},
+                           {j.id: j for j in network.junctions}, estimated)
+    missing = [e.truth_id for e in table.elbows if e.estimate_angle_deg is None or e.estimate_bend_radius_m is None]
+    if missing:
+        notes.append(f"{path.name} does not estimate the angle or bend radius of elbow(s) {', '.join(missing)}")
     if not table.counts_agree:
         notes.append(
             f"{path.name} lists {table.estimated_count} junctions, the ground-truth route visits "
