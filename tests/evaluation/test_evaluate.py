@@ -245,13 +245,21 @@ def _bad(tmp_path, what):
         (("trajectory", "0.0 0 0 0 0 0 0 1\n"), r"trajectory\.tum: only 1 timestamp in common"),
         (("junctions", "format: pipemap-junctions/1\njunctions: [{id: A, centroid: [1, 2]}]\n"),
          r"junctions\.yaml: junctions\[0\]\.centroid: expected a list of 3"),
-        (("junctions", "format: pipemap-junctions/2\njunctions: []\n"), r"junctions\.yaml: format: expected"),
+        (("junctions", "format: pipemap-junctions/3\njunctions: []\n"), r"junctions\.yaml: format: expected"),
         (("junctions", "format: pipemap-junctions/1\njunctions: {id: A}\n"),
          r"junctions\.yaml: junctions: expected a list"),
         (("junctions", "format: [unclosed\n"), r"junctions\.yaml: cannot parse YAML"),
         (("junctions", "format: pipemap-junctions/1\n"
                        "junctions: [{id: A, centroid: [0, 0, 0]}, {id: A, centroid: [1, 0, 0]}]\n"),
          r"junctions\.yaml: junctions\[1\]\.id: junction id 'A' appears twice"),
+        (("junctions", "format: pipemap-junctions/2\njunctions: [{id: A, type: wye, centroid: [0, 0, 0]}]\n"),
+         r"junctions\.yaml: junctions\[0\]\.type: unknown junction type 'wye'"),
+        (("junctions", "format: pipemap-junctions/2\njunctions: [{id: A, type: tee, centroid: [0, 0, 0], "
+                       "angle_deg: 90}]\n"), r"junctions\.yaml: junctions\[0\]: only an elbow has angle_deg"),
+        (("junctions", "format: pipemap-junctions/2\njunctions: [{id: A, type: elbow, centroid: [0, 0, 0], "
+                       "bend_radius_m: -0.3}]\n"), r"junctions\.yaml: junctions\[0\]\.bend_radius_m: must be a number"),
+        (("junctions", "format: pipemap-junctions/2\njunctions: [{id: A, type: elbow, centroid: [0, 0, 0], "
+                       "angle_deg: 200}]\n"), r"junctions\[0\]\.angle_deg: must be a number above 0 and"),
         (("poses", None), r"poses\.tum: no ground-truth poses"),
         (("network", "format: pipemap-network/1\nradius_m: 0\n"), r"network\.yaml: radius_m: must be positive"),
     ],

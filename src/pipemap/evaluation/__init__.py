@@ -5,11 +5,19 @@ Reads result files only; never imports the estimators that produced them.
 """
 
 from pipemap.evaluation.align import Alignment, umeyama
-from pipemap.evaluation.evaluate import EvaluationResult, evaluate, read_junctions, write_metrics
+from pipemap.evaluation.evaluate import (
+    EstimatedJunction,
+    EvaluationResult,
+    evaluate,
+    read_junction_list,
+    read_junctions,
+    write_metrics,
+)
 from pipemap.evaluation.metrics import (
     AteResult,
     DistanceRow,
     DistanceTravelled,
+    ElbowRow,
     JunctionPair,
     JunctionTable,
     associate,
@@ -24,6 +32,8 @@ from pipemap.evaluation.tables import print_tables, tables
 __all__ = [
     "Alignment",
     "AteResult",
+    "ElbowRow",
+    "EstimatedJunction",
     "DistanceRow",
     "DistanceTravelled",
     "EvaluationResult",
@@ -37,6 +47,7 @@ __all__ = [
     "path_length",
     "principal_axis",
     "print_tables",
+    "read_junction_list",
     "read_junctions",
     "tables",
     "umeyama",

@@ -28,12 +28,13 @@ from pipemap.evaluation.metrics import (
 )
 from pipemap.evaluation.sections import SectionError, read_sections, section_errors
 from pipemap.evaluation.wall_error import AppearanceWall, appearance_wall
-from pipemap.network import PipeNetwork, load_network
+from pipemap.network import JUNCTION_TYPES, PipeNetwork, load_network
 from pipemap.output import atomic_write_text
 from pipemap.trajectory import Trajectory, read_tum
 
 METRICS_FORMAT = "pipemap-metrics/1"
-JUNCTIONS_FORMAT = "pipemap-junctions/1"
+JUNCTIONS_FORMAT = "pipemap-junctions/2"
+JUNCTIONS_FORMATS = ("pipemap-junctions/1", JUNCTIONS_FORMAT)  # the versions read
 
 
 @dataclass(frozen=True)
@@ -116,34 +117,82 @@ def _finite_or_none(value):
     return value
 
 
-def read_junctions(path: str | Path) -> tuple[list[str], np.ndarray]:
-    """Read a result's `junctions.yaml` (pipemap-junctions/1): ids and (N, 3) centroids, in order."""
+@dataclass(frozen=True)
+class EstimatedJunction:
+    """One entry of a result's junctions.yaml; an elbow's angle and bend radius where estimated."""
+
+    id: str
+    type: str
+    centroid: np.ndarray
+    keyframe: int | None = None
+    angle_deg: float | None = None
+    bend_radius_m: float | None = None
+
+
+def _optional_positive(item: dict, name: str, path: Path, key: str, upper: float = math.inf) -> float | None:
+    if item.get(name) is None:
+        return None
+    try:
+        x = float(item[name])
+    except (TypeError, ValueError):
+        raise PipemapError("not a number", path, f"{key}.{name}") from None
+    if not 0 < x < upper:
+        raise PipemapError(f"must be a number above 0{'' if upper == math.inf else f' and below {upper:g}'}", path,
+                           f"{key}.{name}")
+    return x
+
+
+def _estimated_junction(item, path: Path, key: str, version: int) -> EstimatedJunction:
+    if not isinstance(item, dict) or "id" not in item:
+        raise PipemapError("expected {id, type, centroid, keyframe}", path, key)
+    try:
+        c = np.asarray(item.get("centroid"), dtype=float)
+    except (TypeError, ValueError):
+        c = np.zeros(0)
+    if c.shape != (3,) or not np.all(np.isfinite(c)):
+        raise PipemapError("expected a list of 3 finite numbers", path, key + ".centroid")
+    jtype = str(item.get("type", "tee"))
+    if version >= 2 and jtype not in JUNCTION_TYPES:
+        raise PipemapError(f"unknown junction type {jtype!r} (expected one of {', '.join(JUNCTION_TYPES)})", path,
+                           key + ".type")
+    angle = _optional_positive(item, "angle_deg", path, key, 180.0)
+    bend = _optional_positive(item, "bend_radius_m", path, key)
+    if (angle is not None or bend is not None) and jtype != "elbow":
+        raise PipemapError(f"only an elbow has angle_deg and bend_radius_m (this is a {jtype})", path, key)
+    keyframe = item.get("keyframe")
+    try:
+        keyframe = None if keyframe is None else int(keyframe)
+    except (TypeError, ValueError):
+        raise PipemapError("expected a keyframe number", path, key + ".keyframe") from None
+    return EstimatedJunction(str(item["id"]), jtype, c, keyframe, angle, bend)
+
+
+def read_junction_list(path: str | Path) -> list[EstimatedJunction]:
+    """Read a result's `junctions.yaml` (pipemap-junctions/1 or /2), in the order the camera passes them."""
     path = Path(path)
     data = read_yaml(path, "junctions file")
-    if data.get("format") != JUNCTIONS_FORMAT:
-        raise PipemapError(f"expected '{JUNCTIONS_FORMAT}', found {data.get('format')!r}", path, "format")
+    if data.get("format") not in JUNCTIONS_FORMATS:
+        raise PipemapError(f"expected '{JUNCTIONS_FORMAT}' (or '{JUNCTIONS_FORMATS[0]}'), found "
+                           f"{data.get('format')!r}", path, "format")
+    version = JUNCTIONS_FORMATS.index(data["format"]) + 1
     items = data.get("junctions")
     if items is None:
         items = []
     if not isinstance(items, list):
         raise PipemapError("expected a list of {id, type, centroid, keyframe}", path, "junctions")
-    ids, centroids = [], []
+    out: list[EstimatedJunction] = []
     for i, item in enumerate(items):
-        key = f"junctions[{i}]"
-        if not isinstance(item, dict) or "id" not in item:
-            raise PipemapError("expected {id, type, centroid, keyframe}", path, key)
-        try:
-            c = np.asarray(item.get("centroid"), dtype=float)
-        except (TypeError, ValueError):
-            c = np.zeros(0)
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise PipemapError("expected a list of 3 finite numbers", path, key + ".centroid")
-        jid = str(item["id"])
-        if jid in ids:
-            raise PipemapError(f"junction id {jid!r} appears twice", path, key + ".id")
-        ids.append(jid)
-        centroids.append(c)
-    return ids, np.asarray(centroids, float).reshape(-1, 3)
+        j = _estimated_junction(item, path, f"junctions[{i}]", version)
+        if any(o.id == j.id for o in out):
+            raise PipemapError(f"junction id {j.id!r} appears twice", path, f"junctions[{i}].id")
+        out.append(j)
+    return out
+
+
+def read_junctions(path: str | Path) -> tuple[list[str], np.ndarray]:
+    """A result's `junctions.yaml` as ids and (N, 3) centroids, in order (read_junction_list for the rest)."""
+    items = read_junction_list(path)
+    return [j.id for j in items], np.asarray([j.centroid for j in items], float).reshape(-1, 3)
 
 
 def _dataset_name(dataset_dir: Path) -> str:
@@ -235,7 +284,7 @@ def _straight_run(network: PipeNetwork, est: Trajectory, gt: Trajectory, notes: 
 def straight_axis(network: PipeNetwork, max_bend_deg: float = 2.0) -> np.ndarray | None:
     """The axis of a network that is one straight pipe, possibly built of several slightly sagging or
     misaligned pieces joined end to end; None for a network with junctions or bends."""
-    if network.junctions or not network.segments:
+    if network.junctions or not network.segments or any(seg.is_arc for seg in network.segments):
         return None
     first, last = network.segments[0], network.segments[-1]
     axis = last.end - first.start
@@ -254,10 +303,16 @@ def _junctions(network: PipeNetwork, path: Path, notes: list[str]) -> JunctionTa
     if not path.exists():
         notes.append("the result has no junctions.yaml: junction table skipped")
         return None
-    ids, centroids = read_junctions(path)
+    estimated = read_junction_list(path)
+    ids = [j.id for j in estimated]
+    centroids = np.asarray([j.centroid for j in estimated], float).reshape(-1, 3)
     # Without a recorded route, the network's own junction order stands in for the visit order.
     visits = network.visits or tuple(j.id for j in network.junctions)
-    table = junction_table(ids, centroids, visits, {j.id: j.centroid for j in network.junctions})
+    table = junction_table(ids, centroids, visits, {j.id: j.centroid for j in network.junctions},
+                           {j.id: j for j in network.junctions}, estimated)
+    missing = [e.truth_id for e in table.elbows if e.estimate_angle_deg is None or e.estimate_bend_radius_m is None]
+    if missing:
+        notes.append(f"{path.name} does not estimate the angle or bend radius of elbow(s) {', '.join(missing)}")
     if not table.counts_agree:
         notes.append(
             f"{path.name} lists {table.estimated_count} junctions, the ground-truth route visits "

@@ -226,13 +226,52 @@ class JunctionPair:
 
 
 @dataclass(frozen=True)
+class ElbowRow:
+    """An elbow's angle and bend radius, true and estimated (None: the result does not estimate it)."""
+
+    truth_id: str
+    estimate_id: str
+    truth_angle_deg: float
+    truth_bend_radius_m: float
+    estimate_angle_deg: float | None
+    estimate_bend_radius_m: float | None
+
+    @property
+    def angle_error_deg(self) -> float | None:
+        return None if self.estimate_angle_deg is None else self.estimate_angle_deg - self.truth_angle_deg
+
+    @property
+    def bend_radius_error_m(self) -> float | None:
+        return None if self.estimate_bend_radius_m is None else self.estimate_bend_radius_m - self.truth_bend_radius_m
+
+    @property
+    def bend_radius_error_pct(self) -> float | None:
+        e = self.bend_radius_error_m
+        return None if e is None else percent(e, self.truth_bend_radius_m)
+
+    def as_dict(self) -> dict:
+        return {
+            "truth_id": self.truth_id, "estimate_id": self.estimate_id,
+            "angle_deg": {"ground_truth": self.truth_angle_deg, "estimate": self.estimate_angle_deg,
+                          "error": self.angle_error_deg, "estimated": self.estimate_angle_deg is not None},
+            "bend_radius_m": {"ground_truth": self.truth_bend_radius_m, "estimate": self.estimate_bend_radius_m,
+                              "error": self.bend_radius_error_m, "error_pct": self.bend_radius_error_pct,
+                              "estimated": self.estimate_bend_radius_m is not None},
+        }
+
+
+@dataclass(frozen=True)
 class JunctionTable:
-    """Pairwise centroid distances; junctions matched by order of first visit."""
+    """Pairwise centroid distances; junctions matched by order of first visit. Every junction type
+    counts (an elbow by its vertex); `types` gives (truth type, estimate type) per match, `elbows` the
+    matched true elbows' angle and bend radius beside the estimate's."""
 
     matches: tuple[tuple[str, str], ...]  # (truth id, estimate id)
     pairs: tuple[JunctionPair, ...]
     estimated_count: int
     truth_count: int
+    types: tuple[tuple[str, str], ...] = ()
+    elbows: tuple[ElbowRow, ...] = ()
 
     @property
     def counts_agree(self) -> bool:
@@ -247,14 +286,17 @@ class JunctionTable:
         return max((abs(p.error_pct) for p in self.pairs), default=math.nan)
 
     def as_dict(self) -> dict:
+        types = self.types or tuple((None, None) for _ in self.matches)
         return {
             "estimated_count": self.estimated_count,
             "ground_truth_count": self.truth_count,
             "counts_agree": self.counts_agree,
-            "matches": [{"truth_id": t, "estimate_id": e} for t, e in self.matches],
+            "matches": [{"truth_id": t, "estimate_id": e, "truth_type": tt, "estimate_type": et}
+                        for (t, e), (tt, et) in zip(self.matches, types)],
             "pairs": [p.as_dict() for p in self.pairs],
             "max_abs_error_m": self.max_abs_error,
             "max_abs_error_pct": self.max_abs_error_pct,
+            "elbows": [e.as_dict() for e in self.elbows],
         }
 
 
@@ -282,11 +324,14 @@ def junction_table(
     est_centroids: np.ndarray,
     visits: Sequence[str],
     truth_centroids: Mapping[str, np.ndarray],
+    truth: Mapping | None = None,
+    estimated: Sequence | None = None,
 ) -> JunctionTable:
     """Table I replica. The i-th estimated junction (listed in order of first passage) is matched
     to the i-th distinct junction of the true route `visits`; extra junctions on either side are
     left unmatched and reported through the counts. Distances are frame-independent, so no
-    alignment is needed."""
+    alignment is needed. `truth` (id -> network Junction) and `estimated` (the result's junctions in
+    order, with type, angle_deg, bend_radius_m) add the types and the elbows' angles and bend radii."""
     order = first_visits(visits)
     est_c = np.asarray(est_centroids, float).reshape(-1, 3)
     n = min(len(order), len(est_ids))
@@ -301,4 +346,16 @@ def junction_table(
         error = d_est - d_gt
         pairs.append(JunctionPair((a, b), (est_ids[ia], est_ids[ib]), d_gt, d_est, error, percent(error, d_gt)))
     matches = tuple((order[i], str(est_ids[i])) for i in range(n))
-    return JunctionTable(matches, tuple(pairs), len(est_ids), len(order))
+    types, elbows = (), ()
+    if truth is not None:
+        est = list(estimated) if estimated is not None else [None] * n
+        types = tuple((truth[t].type, None if est[i] is None else est[i].type) for i, (t, _) in enumerate(matches))
+        elbows = tuple(_elbow_row(truth[t], e, est[i]) for i, (t, e) in enumerate(matches) if truth[t].type == "elbow")
+    return JunctionTable(matches, tuple(pairs), len(est_ids), len(order), types, elbows)
+
+
+def _elbow_row(truth, estimate_id: str, estimate) -> ElbowRow:
+    angle = getattr(estimate, "angle_deg", None)
+    bend = getattr(estimate, "bend_radius_m", None)
+    return ElbowRow(truth.id, estimate_id, float(truth.angle_deg), float(truth.bend_radius_m),
+                    None if angle is None else float(angle), None if bend is None else float(bend))

@@ -265,6 +265,18 @@ def _errors(metrics: dict | None) -> str:
         text.append(f"<p>max |error| {_num(j.get('max_abs_error_m'), '.3f')} m "
                     f"({_num(j.get('max_abs_error_pct'), '.2f')} %); {j.get('estimated_count', '?')} estimated, "
                     f"{j.get('ground_truth_count', '?')} true junctions</p>")
+        elbows = j.get("elbows") or []
+        if elbows:
+            def est(block: dict, fmt: str) -> str:
+                return _num(block.get("estimate"), fmt) if block.get("estimated") else "not estimated"
+
+            rows = [[e["truth_id"], e["estimate_id"], _num(e["angle_deg"]["ground_truth"], ".2f"),
+                     est(e["angle_deg"], ".2f"), _num(e["angle_deg"].get("error"), "+.2f"),
+                     _num(e["bend_radius_m"]["ground_truth"], ".4f"), est(e["bend_radius_m"], ".4f"),
+                     _num(e["bend_radius_m"].get("error_pct"), "+.2f")] for e in elbows]
+            text.append("<h3>Elbows: angle and bend radius</h3>" + _table(
+                ["elbow", "estimate id", "angle truth (deg)", "angle estimate (deg)", "error (deg)",
+                 "bend radius truth (m)", "bend radius estimate (m)", "error (%)"], rows, 2))
     d = metrics.get("distance_travelled")
     if d:
         blocks = [(k, d[k]) for k in ("forward", "reverse", "total") if isinstance(d.get(k), dict)]

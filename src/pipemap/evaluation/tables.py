@@ -65,12 +65,34 @@ def junction_distance_table(result: EvaluationResult) -> Table | None:
     caption = f"max |error| {_num(j.max_abs_error, '.3f')} m ({_num(j.max_abs_error_pct, '.2f')} %)"
     if not j.counts_agree:
         caption += f"; {j.estimated_count} estimated vs {j.truth_count} true junctions"
-    t = Table(title="T-intersection centre distances (fisheye paper, Table I)", caption=caption)
-    for name in ("Distance", "Estimate ids", "Truth (m)", "Estimate (m)", "Error (m)", "Error (%)"):
-        t.add_column(name, justify="left" if "Distance" in name or "ids" in name else "right")
+    kinds = {t: tt for (t, _), (tt, _) in zip(j.matches, j.types)}
+    title = ("T-intersection centre distances (fisheye paper, Table I)" if set(kinds.values()) <= {"tee"}
+             else "Junction centre distances (fisheye paper, Table I; an elbow's centre is its vertex)")
+    t = Table(title=title, caption=caption)
+    for name in ("Distance", "Types", "Estimate ids", "Truth (m)", "Estimate (m)", "Error (m)", "Error (%)"):
+        t.add_column(name, justify="left" if name in ("Distance", "Types", "Estimate ids") else "right")
     for p in j.pairs:
-        t.add_row("-".join(p.truth_ids), "-".join(p.estimate_ids), _num(p.ground_truth, ".3f"),
-                  _num(p.estimate, ".3f"), _num(p.error, "+.3f"), _num(p.error_pct, "+.2f"))
+        t.add_row("-".join(p.truth_ids), "-".join(kinds.get(x, "?") for x in p.truth_ids), "-".join(p.estimate_ids),
+                  _num(p.ground_truth, ".3f"), _num(p.estimate, ".3f"), _num(p.error, "+.3f"),
+                  _num(p.error_pct, "+.2f"))
+    return t
+
+
+def elbow_table(result: EvaluationResult) -> Table | None:
+    """Each visited elbow's angle and bend radius beside the estimate's (error = estimate - truth)."""
+    j = result.junctions
+    if j is None or not j.elbows:
+        return None
+    t = Table(title="Elbows: angle and bend radius")
+    for name in ("Elbow", "Estimate id", "Angle truth (deg)", "Angle estimate (deg)", "Error (deg)",
+                 "Bend radius truth (m)", "Bend radius estimate (m)", "Error (%)"):
+        t.add_column(name, justify="left" if name in ("Elbow", "Estimate id") else "right")
+    for e in j.elbows:
+        t.add_row(e.truth_id, e.estimate_id, _num(e.truth_angle_deg, ".2f"),
+                  "not estimated" if e.estimate_angle_deg is None else _num(e.estimate_angle_deg, ".2f"),
+                  _num(e.angle_error_deg, "+.2f"), _num(e.truth_bend_radius_m, ".4f"),
+                  "not estimated" if e.estimate_bend_radius_m is None else _num(e.estimate_bend_radius_m, ".4f"),
+                  _num(e.bend_radius_error_pct, "+.2f"))
     return t
 
 
@@ -107,7 +129,7 @@ def appearance_wall_table(result: EvaluationResult) -> Table | None:
 def tables(result: EvaluationResult) -> list[Table]:
     """All tables that apply to this result, in reading order."""
     return [t for t in (summary_table(result), distance_travelled_table(result), junction_distance_table(result),
-                        section_table(result), appearance_wall_table(result)) if t is not None]
+                        elbow_table(result), section_table(result), appearance_wall_table(result)) if t is not None]
 
 
 def print_tables(result: EvaluationResult, console: Console | None = None) -> None:

@@ -34,7 +34,8 @@ def raycast_network(network: PipeNetwork, origin: np.ndarray, directions: np.nda
     r = network.radius_m
     n = len(directions)
     best = np.full(n, np.inf)
-    for seg in network.segments:
+    pieces = network.straight_pieces()  # an elbow's arc as chords within 0.1 mm of it
+    for seg in pieces:
         a, u, length = seg.start, seg.axis, seg.length
         oc = origin - a
         d_perp = directions - np.outer(directions @ u, u)
@@ -49,20 +50,20 @@ def raycast_network(network: PipeNetwork, origin: np.ndarray, directions: np.nda
             p = origin + s[:, None] * directions
             h = (p - a) @ u
             good = ok & (s > 1e-6) & (h >= -1e-6) & (h <= length + 1e-6) & (s < best)
-            good &= ~_inside_other(network, p, seg)
+            good &= ~_inside_other(network.radius_m, pieces, p, seg)
             best = np.where(good, s, best)
     hit = np.isfinite(best)
     return origin + np.where(hit, best, 0.0)[:, None] * directions, hit
 
 
-def _inside_other(network: PipeNetwork, p: np.ndarray, this) -> np.ndarray:
+def _inside_other(radius: float, pieces, p: np.ndarray, this) -> np.ndarray:
     inside = np.zeros(len(p), bool)
-    for seg in network.segments:
+    for seg in pieces:
         if seg is this:
             continue
         h = (p - seg.start) @ seg.axis
         radial = np.linalg.norm((p - seg.start) - np.outer(h, seg.axis), axis=1)
-        inside |= (radial < network.radius_m - 1e-6) & (h > 1e-6) & (h < seg.length - 1e-6)
+        inside |= (radial < radius - 1e-6) & (h > 1e-6) & (h < seg.length - 1e-6)
     return inside
 
 

@@ -110,20 +110,32 @@ def wall_distance(points: np.ndarray, network: PipeNetwork, end_tolerance_m: flo
 
     Each segment's wall is an open tube of radius `network.radius_m` around start -> end,
     lengthened by `end_tolerance_m` at both ends. Within that axial extent a point's distance to
-    it is |radial distance - r|; beyond it, the Euclidean distance to the tube's end rim. The
-    result is the minimum over segments."""
+    it is |radial distance - r|; beyond it, the Euclidean distance to the tube's end rim. An arc's
+    (an elbow's) wall is the torus around it: |distance to the axis circle - r| within its angle,
+    chainage beyond its ends counting as for a straight tube. The result is the minimum over segments."""
     if not network.segments:
         raise ValueError("the network has no segments")
-    starts = np.array([s.start for s in network.segments])
-    axes = np.array([s.axis for s in network.segments])
-    lengths = np.array([s.length for s in network.segments])
+    lines = [s for s in network.segments if not s.is_arc]
+    arcs = [s for s in network.segments if s.is_arc]
     p = np.asarray(points).reshape(-1, 3)
-    out = np.empty(len(p))
-    for lo in range(0, len(p), CHUNK_POINTS):
-        h, q2 = _axial_and_square(p[lo:lo + CHUNK_POINTS], starts, axes)
-        off = np.sqrt(np.maximum(q2 - h * h, 0.0)) - network.radius_m
-        beyond = np.maximum(np.maximum(-h, h - lengths) - end_tolerance_m, 0.0)
-        out[lo:lo + len(h)] = np.sqrt(np.min(off * off + beyond * beyond, axis=1))
+    out = np.full(len(p), np.inf)
+    if lines:
+        starts = np.array([s.start for s in lines])
+        axes = np.array([s.axis for s in lines])
+        lengths = np.array([s.length for s in lines])
+        for lo in range(0, len(p), CHUNK_POINTS):
+            h, q2 = _axial_and_square(p[lo:lo + CHUNK_POINTS], starts, axes)
+            off = np.sqrt(np.maximum(q2 - h * h, 0.0)) - network.radius_m
+            beyond = np.maximum(np.maximum(-h, h - lengths) - end_tolerance_m, 0.0)
+            out[lo:lo + len(h)] = np.sqrt(np.min(off * off + beyond * beyond, axis=1))
+    for s in arcs:
+        q = p - s.centre
+        e1 = (s.start - s.centre) / s.bend_radius
+        x, y, z = q @ e1, q @ np.cross(s.normal, e1), q @ s.normal
+        theta = np.arctan2(y, x)
+        off = np.hypot(np.hypot(x, y) - s.bend_radius, z) - network.radius_m
+        beyond = np.maximum(s.bend_radius * np.maximum(-theta, theta - s.angle) - end_tolerance_m, 0.0)
+        out = np.minimum(out, np.sqrt(off * off + beyond * beyond))
     return out
 
 

@@ -11,6 +11,13 @@ for, simulate() keeps the first N frames of the route at the same spacing.
   looking up at the wall with image x along the pipe (report section 5.3), 4 LEDs; routes
   "forward" and "forward-reverse" with the report's frame counts.
 - fisheye-straight: one straight 400 mm pipe seen by the fisheye.
+- tee-pass-loop: the 3.0 m x 2.2 m, 300 mm tee loop of issue 20 at 640x480 fisheye; route "A" starts in T1's
+  stub, passes T1 straight through, turns at T4, T3, T2, comes back to T1 head-on along its branch and turns
+  into the stub; route "B" passes T1 and T2 straight through (from stub to stub).
+- elbow-cross: issue 20's 300 mm network of a 90 deg elbow (bend radius 1.5 D), a cross, a 45 deg elbow
+  (2 D) and a 30 deg sweeping bend (10 D) at 640x480 fisheye; route "A" drives through them all turning at
+  the cross, "B" drives the bends backwards and passes the cross straight through, "C" the 90 deg elbow and
+  the cross straight along its main pipe.
 - demo-loop: a small 2 m x 1.5 m tee loop at 640x480, fast; route "A" drives the lap and on
   past its start along the first side, so the run revisits it (loop closure).
 - cctv-loop / cctv-straight: a sewer crawler's forward-looking CCTV camera (100 deg, barrel
@@ -31,7 +38,8 @@ import numpy as np
 
 from pipemap.camera import CameraModel, KannalaBrandtCamera, PinholeCamera, PolynomialCamera
 from pipemap.errors import PipemapError
-from pipemap.sim.network_model import PipeScene, route_polyline, straight_scene, tee_loop_scene
+from pipemap.network import Junction
+from pipemap.sim.network_model import PipeScene, network_scene, route_polyline, straight_scene, tee_loop_scene
 from pipemap.sim.render import Appearance
 from pipemap.sim.route import Drive
 
@@ -206,6 +214,67 @@ def _demo_loop(width, height, route, seed):
     return s
 
 
+# The reviewer's tee-pass scene (issue 20): a 3.0 m x 2.2 m loop of 300 mm pipe, a tee at each corner, 1 m stubs.
+# T1's main pipe is side T4-T1 with its stub B1 beyond T1 (-y); T2's main pipe is side T2-T3 with its stub B2
+# beyond T2 (-y too), so that a route can leave T1's stub straight through T1 and end straight through T2.
+TEE_PASS_CORNERS = np.array([[0, 0, 0], [3.0, 0, 0], [3.0, 2.2, 0], [0, 2.2, 0]], float)
+_TEE_PASS_LEGS = {
+    # start in B1, T1 straight through, turn at T4, T3, T2, back to T1 head-on along its branch, turn into B1
+    "A": [("B1", True), ("S4", True), ("S3", True), ("S2", True), ("S1", True), ("B1", False)],
+    # start in B1, T1 straight through, turn at T4 and T3, T2 straight through into its stub B2
+    "B": [("B1", True), ("S4", True), ("S3", True), ("S2", True), ("B2", False)],
+}
+
+
+def _tee_pass_loop(width, height, route, seed, *, stub=1.0, start_back=0.75, end_in=0.5):
+    """Routes that pass tees straight through and approach one along its stem; the drive starts
+    `start_back` before T1 in its stub and ends `end_in` into the last stub."""
+    scene = tee_loop_scene(TEE_PASS_CORNERS, 0.15, stub_length=stub, piece_length=1.0, sag_m=0.002, misalign_m=0.001,
+                           seed=seed, main_out=(2,))
+    poly = route_polyline(scene, _TEE_PASS_LEGS[route])
+    drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", turn_radius_m=0.15, start_m=stub - start_back,
+                  end_m=-(stub - end_in))
+    return Setup("tee-pass-loop", scene, fisheye_camera(width or 640, height or 480), poly, drive,
+                 Appearance(mm_per_px=1.0), 7.5, notes={"straight_through": ["T1"] if route == "A" else ["T1", "T2"]})
+
+
+def elbow_cross_scene(radius: float = 0.15) -> PipeScene:
+    """Issue 20's network of elbows and a cross, 300 mm pipe, all in the plane z = 0.
+
+    Run M1 from a closed end at the origin along +x turns left at E1 (90 deg, bend radius 0.45 m =
+    1.5 D, vertex (2, 0)) and meets the cross X1 at (2, 2.2); M2 goes on straight through it along +y to a
+    closed end 1 m on. The cross's branches: W leaves X1 along -x, turns right at E2 (45 deg, bend radius
+    0.6 m = 2 D, vertex 1.2 m from X1) and again at E3, a long sweeping bend (30 deg, bend radius 3 m =
+    10 D, vertex 2 m on), to a closed end 2 m further; X is a closed 1 m stub along +x."""
+    x1 = np.array([2.0, 2.2, 0.0])
+    e2 = np.array([0.8, 2.2, 0.0])
+    e3 = e2 + 2.0 * np.array([-np.sqrt(0.5), np.sqrt(0.5), 0.0])
+    w_end = e3 + 2.0 * np.array([np.cos(np.radians(105)), np.sin(np.radians(105)), 0.0])
+    runs = [
+        ("M1", np.array([[0.0, 0, 0], [2.0, 0, 0], x1]), {1: ("E1", 0.45)}, True, False),
+        ("M2", np.array([x1, [2.0, 3.2, 0]]), {}, False, True),
+        ("W", np.array([x1, e2, e3, w_end]), {1: ("E2", 0.6), 2: ("E3", 3.0)}, False, True),
+        ("X", np.array([x1, [3.0, 2.2, 0]]), {}, False, True),
+    ]
+    return network_scene(radius, runs, [Junction("X1", "cross", x1)])
+
+
+# route -> (legs, metres from the first run's start where the drive begins, metres short of the end where it stops)
+_ELBOW_ROUTES = {
+    "A": ([("M1", False), ("W", False)], 0.5, 0.5),  # E1, turn at X1, E2, E3
+    "B": ([("W", True), ("X", False)], 0.5, 0.4),  # E3, E2 backwards, X1 straight through into the stub
+    "C": ([("M1", False), ("M2", False)], 0.5, 0.4),  # E1, X1 straight through along the main pipe
+}
+
+
+def _elbow_cross(width, height, route, seed):
+    scene = elbow_cross_scene()
+    legs, start, end = _ELBOW_ROUTES[route]
+    drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", turn_radius_m=0.15, start_m=start, end_m=-end)
+    return Setup("elbow-cross", scene, fisheye_camera(width or 640, height or 480), route_polyline(scene, legs), drive,
+                 Appearance(mm_per_px=1.0), 7.5)
+
+
 def _fisheye_straight(width, height, route, seed):
     scene = straight_scene(6.0, 0.2, piece_length=2.0, sag_m=0.003, misalign_m=0.0015, seed=seed)
     drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", start_m=0.5, end_m=5.0,
@@ -335,6 +404,13 @@ register_preset("paper-straight-16in", "2010 report pipe 2: 4 m x 387.56 mm, per
 register_preset("fisheye-straight", "one straight 6 m x 400 mm pipe, 190 deg fisheye 1280x960",
                 ("forward", "forward-reverse"), _fisheye_straight)
 register_preset("demo-loop", "small 2 m x 1.5 m tee loop, fisheye 640x480 (fast)", ("A", "B"), _demo_loop)
+register_preset("tee-pass-loop", "3.0 m x 2.2 m loop of 300 mm pipe, a tee at each corner, fisheye 640x480: "
+                "A leaves T1's stub straight through T1, turns at T4, T3, T2, meets T1 head-on along its branch and "
+                "turns into the stub; B passes T1 and T2 straight through", ("A", "B"), _tee_pass_loop)
+register_preset("elbow-cross", "300 mm network of elbows and a cross, fisheye 640x480: A drives through a 90 deg elbow "
+                "(bend radius 1.5 D), turns at the cross, then a 45 deg elbow (2 D) and a 30 deg sweeping bend (10 D); "
+                "B drives the bends backwards and through the cross straight; C the 90 deg elbow and the cross "
+                "straight along its main pipe", ("A", "B", "C"), _elbow_cross)
 register_preset("cctv-loop", "sewer crawler's forward-looking CCTV (100 deg, barrel distortion, 640x480; 720x576 "
                 "keeps the view) in a 3.0 m x 2.2 m loop of 300 mm pipe with a tee at each corner", ("A", "B"),
                 _cctv_loop)

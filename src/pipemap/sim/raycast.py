@@ -1,4 +1,4 @@
-"""Exact ray casting of camera bearings against the union of a network's solid cylinders.
+"""Exact ray casting of camera bearings against the union of a network's solid cylinders and bends.
 
 The pipe interior is the union of the solid pieces. A camera inside it sees, along each ray,
 the first point where the ray leaves the union: the nearest point that lies on a piece's
@@ -10,6 +10,11 @@ Fast path: a ray stays inside a piece that contains the camera until it leaves t
 wall, so when that exit point lies in a stretch of wall that no other piece reaches it is the
 answer. Only the remaining rays (near tees, joints and ends) are tested against every nearby
 piece.
+
+Bends (an elbow's torus piece) are intersected exactly: the ray meets the torus where a quartic
+in t vanishes (geometry.torus: Ferrari's method, polished by Newton steps, in float64 whatever the
+caster's dtype), and a root counts where it lies within the bend's angle. Hits on a bend report
+h = bend radius x theta, the chainage along its arc.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipemap.geometry.torus import ray_torus
 from pipemap.sim.network_model import PipeScene
 
 
@@ -58,6 +64,8 @@ class RayCaster:
         self.lo = -np.array([p.extend_start for p in pipes])
         self.hi = self.length + np.array([p.extend_end for p in pipes])
         self.closed = [(p.closed_start, p.closed_end) for p in pipes]
+        self.K = len(pipes)
+        self.bends = scene.bends
         # geometric tolerances: extents are widened (no cracks at seams), "inside" is strict
         self.eps_h = 1e-4 if self.dtype == np.float32 else 1e-10
         self.inside_tol = 1e-3 if self.dtype == np.float32 else 1e-9
@@ -66,34 +74,45 @@ class RayCaster:
     # -- set-up ---------------------------------------------------------------------------------
 
     def _adjacency(self):
-        """Pieces whose solids may overlap, and per piece the h intervals a neighbour may reach."""
+        """Pieces whose solids may overlap, and per straight piece the h intervals a neighbour may reach.
+        A bend counts by points along its arc (16 chords: each within R (1 - cos(angle / 32)) of it)."""
         K = len(self.scene.pipes)
         ends0 = self.start + self.lo[:, None] * self.axis
         ends1 = self.start + self.hi[:, None] * self.axis
-        neighbours: list[list[int]] = [[] for _ in range(K)]
+        lines = [np.stack([ends0[i], ends1[i]]) for i in range(K)]
+        slack = [0.0] * K
+        for b in self.bends:
+            lines.append(b.axis_point(np.linspace(0.0, b.angle, 17)))
+            slack.append(b.bend_radius * (1 - np.cos(b.angle / 32)))
+        n = len(lines)
+        neighbours: list[list[int]] = [[] for _ in range(n)]
         zones: list[list[tuple[float, float]]] = [[] for _ in range(K)]
-        for i in range(K):
-            for k in range(K):
+        for i in range(n):
+            for k in range(n):
                 if i == k:
                     continue
-                if _segment_distance(ends0[i], ends1[i], ends0[k], ends1[k]) < 2 * self.r + 0.02:
+                if _polyline_distance(lines[i], lines[k]) < 2 * self.r + 0.02 + slack[i] + slack[k]:
                     neighbours[i].append(k)
-                    hk = [(e - self.start[i]) @ self.axis[i] for e in (ends0[k], ends1[k])]
-                    zones[i].append((min(hk) - self.r - 1e-3, max(hk) + self.r + 1e-3))
-        return [np.array(n, int) for n in neighbours], zones
+                    if i < K:
+                        hk = (lines[k] - self.start[i]) @ self.axis[i]
+                        zones[i].append((min(hk) - self.r - 1e-3 - slack[k], max(hk) + self.r + 1e-3 + slack[k]))
+        return [np.array(nb, int) for nb in neighbours], zones
 
     def _nearby(self, origin: np.ndarray) -> tuple[np.ndarray, list[int]]:
-        """Indices of the pieces to test, and the pieces that contain the camera."""
+        """Indices of the pieces to test (straight ones first, then bends at K + m), and the straight
+        pieces that contain the camera."""
         q = origin - self.start
         h = np.einsum("kj,kj->k", q, self.axis)
         rad = np.linalg.norm(q - h[:, None] * self.axis, axis=1)
         homes = list(np.flatnonzero((h > self.lo) & (h < self.hi) & (rad < self.r)))
         homes.sort(key=lambda k: rad[k])
         dist = np.linalg.norm(q - np.clip(h, self.lo, self.hi)[:, None] * self.axis, axis=1) - self.r
+        if self.bends:
+            dist = np.concatenate([dist, [float(b.axis_distance(origin)) - self.r for b in self.bends]])
         near = dist < self.cull
         if not homes:
             return np.flatnonzero(near), homes
-        keep = np.zeros(len(h), bool)
+        keep = np.zeros(len(dist), bool)
         frontier = list(homes)
         keep[frontier] = True
         for _ in range(self.max_hops):
@@ -118,11 +137,13 @@ class RayCaster:
         B = np.asarray(B, self.dtype)
         n = B.shape[1]
         cand, homes = self._nearby(origin)
+        bend_cand = cand[cand >= self.K] - self.K
+        cand = cand[cand < self.K]
         t_out = np.full(n, np.inf, self.dtype)
         pipe_out = np.full(n, -1, np.int32)
         cap_out = np.zeros(n, bool)
         h_out = np.zeros(n, self.dtype)
-        if cand.size == 0 or n == 0:
+        if (cand.size == 0 and bend_cand.size == 0) or n == 0:
             return Hits(t_out, pipe_out, cap_out, h_out)
         # Each candidate in the camera frame, re-based at its axis point nearest the camera so
         # that the quadratic's constant term keeps its precision in float32.
@@ -139,6 +160,7 @@ class RayCaster:
         geo.cone = np.where(dist > rho, np.sqrt(np.maximum(0.0, 1 - (rho / np.maximum(dist, 1e-12)) ** 2)) - 1e-5, -2.0)
         geo.order = np.argsort(dist - rho)  # near pieces first: later ones are pruned by t < best
         geo.c_unit = c_c / np.maximum(dist, 1e-12)[:, None]
+        geo.bends = _BendGeometry(self, bend_cand, R, origin)
         rest = None
         if homes:
             j = int(np.flatnonzero(cand == homes[0])[0])
@@ -199,6 +221,7 @@ class RayCaster:
                     rad2 = t * t - 2 * t * da + f(geo.aa[j]) - (hc - f(geo.h0[j])) ** 2
                     cands.append((t, np.full(rows.shape[1], hc, dt), rad2 <= f(self.r**2), True))
                 others = [pos[k] for k in self.neighbours[gj] if k in pos]
+                bend_others = geo.bends.positions(self.neighbours[gj])
                 best_sub = best if sub is None else best[sub]
                 for t, h, ok, is_cap in cands:
                     ok = ok & (t > 0) & (t < best_sub)
@@ -212,11 +235,50 @@ class RayCaster:
                         if idx_in.any():
                             keep = ~idx_in
                             idx, ti = idx[keep], ti[keep]
+                    for k in bend_others:
+                        idx_in = geo.bends.inside(k, ti, rows[:, idx])
+                        if idx_in.any():
+                            idx, ti = idx[~idx_in], ti[~idx_in]
                     hi_ = h[idx]
                     best_sub[idx] = ti
                     out = idx if sub is None else sub[idx]
                     best[out], pipe[out], cap[out], hbest[out] = ti, gj, is_cap, hi_
+            if geo.bends.count:
+                self._full_bends(geo, B, pos, best, pipe, cap, hbest)
         return best, pipe, cap, hbest
+
+    def _full_bends(self, geo: "_Geometry", B: np.ndarray, pos: dict, best, pipe, cap, hbest) -> None:
+        """The bends' share of _full: their torus hits within their angle, not inside a neighbour."""
+        bg = geo.bends
+        dt = self.dtype
+        for m in range(bg.count):
+            b = int(bg.cand[m])
+            sub = bg.cone_rays(m, B)
+            if sub.size == 0:
+                continue
+            rows = B[:, sub]
+            roots, h_all, ok_all = bg.hits(m, rows)
+            gk = self.K + b
+            others = [pos[k] for k in self.neighbours[gk] if k in pos]
+            bend_others = [o for o in bg.positions(self.neighbours[gk]) if o != m]
+            best_sub = best[sub]
+            for i in range(roots.shape[1]):
+                t = roots[:, i].astype(dt)
+                ok = ok_all[:, i] & (t > 0) & (t < best_sub)
+                idx = np.flatnonzero(ok)
+                if idx.size == 0:
+                    continue
+                ti = t[idx]
+                for k in others:
+                    Bi = rows[:, idx]
+                    idx_in = geo.inside(k, ti, _dot(Bi, geo.u_c[k], dt), _dot(Bi, geo.a_c[k], dt))
+                    idx, ti = idx[~idx_in], ti[~idx_in]
+                for k in bend_others:
+                    idx_in = bg.inside(k, ti, rows[:, idx])
+                    idx, ti = idx[~idx_in], ti[~idx_in]
+                best_sub[idx] = ti
+                out = sub[idx]
+                best[out], pipe[out], cap[out], hbest[out] = ti, gk, False, h_all[idx, i].astype(dt)
 
 
 def _dot(B: np.ndarray, v: np.ndarray, dtype) -> np.ndarray:
@@ -272,6 +334,71 @@ class _Geometry:
         rad2 = t * t - 2 * t * da + f(self.aa[k]) - hr * hr
         margin = c.eps_h * 10
         return (h > c.lo[g] + margin) & (h < c.hi[g] - margin) & (rad2 < f(c.r**2 * (1 - c.inside_tol)))
+
+
+class _BendGeometry:
+    """The candidate bends seen from one camera pose: each bend's frame scaled by its bend radius, so a
+    camera-frame ray D maps to o + t * (M @ D) there (float64 whatever the caster's dtype)."""
+
+    def __init__(self, caster: RayCaster, cand: np.ndarray, R_wc: np.ndarray, origin: np.ndarray):
+        self.caster = caster
+        self.cand = np.asarray(cand, int)
+        self.count = len(self.cand)
+        self.o, self.M, self.minor, self.eps, self.cone, self.c_unit = [], [], [], [], [], []
+        for b in (caster.bends[i] for i in self.cand):
+            E = b.basis / b.bend_radius
+            self.o.append(E @ (origin - b.centre))
+            self.M.append(E @ R_wc)
+            self.minor.append(caster.r / b.bend_radius)
+            self.eps.append(caster.eps_h / b.bend_radius)
+            # bounding sphere about the arc's midpoint: every arc point within 2 R sin(angle / 4)
+            mid = b.axis_point(b.angle / 2)
+            rho = (2 * b.bend_radius * np.sin(b.angle / 4) + caster.r) * 1.001 + 1e-6
+            c = (mid - origin) @ R_wc
+            dist = float(np.linalg.norm(c))
+            self.cone.append(np.sqrt(max(0.0, 1 - (rho / dist) ** 2)) - 1e-5 if dist > rho else -2.0)
+            self.c_unit.append(c / max(dist, 1e-12))
+
+    def positions(self, pieces) -> list[int]:
+        """Positions in this list of the bends among `pieces` (indices of the whole union)."""
+        where = {int(b) + self.caster.K: m for m, b in enumerate(self.cand)}
+        return [where[int(k)] for k in pieces if int(k) in where]
+
+    def cone_rays(self, m: int, B: np.ndarray) -> np.ndarray:
+        if self.cone[m] <= -1:
+            return np.arange(B.shape[1])
+        return np.flatnonzero(_dot(B, self.c_unit[m], self.caster.dtype) >= self.caster.dtype.type(self.cone[m]))
+
+    def _local(self, m: int, rows: np.ndarray) -> np.ndarray:
+        return self.M[m] @ np.asarray(rows, float)
+
+    def hits(self, m: int, rows: np.ndarray):
+        """Torus roots t (n, 4) in metres (NaN: none), their h along the arc, and whether each lies
+        within the bend's angle (widened by the caster's seam tolerance)."""
+        b = self.caster.bends[int(self.cand[m])]
+        d = self._local(m, rows)
+        # rows are unit vectors; in the scaled frame they have length 1 / R: solve there with unit dirs
+        t = ray_torus(self.o[m], d * b.bend_radius, self.minor[m])
+        p = self.o[m][:, None, None] + d[:, :, None] * (t * b.bend_radius)[None]
+        theta = np.arctan2(p[1], p[0])
+        with np.errstate(invalid="ignore"):
+            ok = (theta >= -self.eps[m]) & (theta <= b.angle + self.eps[m]) & np.isfinite(t)
+        return np.where(np.isfinite(t), t * b.bend_radius, np.inf), theta * b.bend_radius, ok
+
+    def inside(self, m: int, t: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Whether the points t * D lie strictly inside candidate bend m."""
+        c = self.caster
+        b = c.bends[int(self.cand[m])]
+        p = self.o[m][:, None] + self._local(m, rows) * np.asarray(t, float)
+        theta = np.arctan2(p[1], p[0])
+        d2 = (np.hypot(p[0], p[1]) - 1.0) ** 2 + p[2] ** 2
+        margin = 10 * self.eps[m]
+        return (theta > margin) & (theta < b.angle - margin) & (d2 < self.minor[m] ** 2 * (1 - c.inside_tol))
+
+
+def _polyline_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Shortest distance between two polylines (see _segment_distance for its accuracy)."""
+    return min(_segment_distance(a[i], a[i + 1], b[k], b[k + 1]) for i in range(len(a) - 1) for k in range(len(b) - 1))
 
 
 def _segment_distance(p0, p1, q0, q1) -> float:

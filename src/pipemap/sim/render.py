@@ -104,8 +104,17 @@ class Renderer:
         self.texture = WallTexture(int(seed), appearance.mm_per_px, appearance.texture_style)
         self.leds = appearance.leds()
         circ = 2 * np.pi * scene.radius
-        self.surfaces = [self.texture.surface(p.id, p.extend_start + p.length + p.extend_end, circ)
-                         for p in scene.pipes]
+        # each piece samples its surface at h + offset: its own (from the overlap at its start), or its
+        # chain's, shared along a run through elbows (wall texture unbroken into a bend)
+        self.surfaces, self.h_offsets = [], []
+        for p in scene.pieces:
+            if p.chain is None:
+                self.surfaces.append(self.texture.surface(p.id, p.extend_start + p.length + p.extend_end, circ))
+                self.h_offsets.append(np.float32(p.extend_start))
+            else:
+                key, h0, total = p.chain
+                self.surfaces.append(self.texture.surface(key, total, circ))
+                self.h_offsets.append(np.float32(h0))
         self.exposure = appearance.exposure
 
     # -- geometry and radiance ------------------------------------------------------------------
@@ -129,7 +138,11 @@ class Renderer:
         P = B * t
         N = np.zeros((3, n), f32)
         s = np.zeros(n, f32)
-        for j, idx in _groups(hits.pipe, len(self.scene.pipes)):
+        K = len(self.scene.pipes)
+        for j, idx in _groups(hits.pipe, len(self.scene.pieces)):
+            if j >= K:
+                N[:, idx], s[idx] = self._bend_wall(self.scene.bends[j - K], R, origin, P[:, idx])
+                continue
             pipe = self.scene.pipes[j]
             u = (pipe.axis @ R).astype(f32)
             a = ((pipe.start - origin) @ R).astype(f32)
@@ -152,6 +165,23 @@ class Renderer:
             N[:, idx] = w
         return P, N, h, s, hits
 
+    def _bend_wall(self, bend, R: np.ndarray, origin: np.ndarray, P: np.ndarray):
+        """Inward normals (3, n) in the camera frame and s = r * phi of camera-frame wall points P on a bend:
+        phi from the bend's `up` carried along the arc (the straight pieces' convention, e2 = e1 x tangent)."""
+        E = bend.basis
+        q = (E @ R) @ P.astype(np.float64) + (E @ (origin - bend.centre))[:, None]  # the bend's frame
+        theta = np.arctan2(q[1], q[0])
+        c, sn = np.cos(theta), np.sin(theta)
+        radial = q - np.stack([bend.bend_radius * c, bend.bend_radius * sn, np.zeros_like(c)])
+        # back to the start's cross-section (turn by -theta about the normal), where phi = 0 at `up`
+        x0, y0 = c * radial[0] + sn * radial[1], -sn * radial[0] + c * radial[1]
+        f1 = E @ bend.up
+        f2 = np.cross(f1, [0.0, 1.0, 0.0])  # up x start tangent, as Pipe.frame's e2 = e1 x axis
+        x = f1[0] * x0 + f1[1] * y0 + f1[2] * radial[2]
+        y = f2[0] * x0 + f2[1] * y0 + f2[2] * radial[2]
+        normal = (R.T @ E.T) @ (radial * (-1.0 / self.scene.radius))
+        return normal.astype(np.float32), (np.arctan2(y, x) * self.scene.radius).astype(np.float32)
+
     def radiance(self, R_wc: np.ndarray, t_wc: np.ndarray) -> np.ndarray:
         """(H, W) float32 radiance of one pose."""
         return self.shading(R_wc, t_wc).radiance()
@@ -165,9 +195,8 @@ class Renderer:
         albedo = np.zeros(P.shape[1], np.float32)
         cos_inc = np.abs(N[0] * B[0] + N[1] * B[1] + N[2] * B[2])
         footprint = hits.t * self.pixels.angle / np.maximum(cos_inc, np.float32(0.1))
-        for j, idx in _groups(hits.pipe, len(self.scene.pipes)):
-            pipe = self.scene.pipes[j]
-            albedo[idx] = self.surfaces[j].sample(h[idx] + np.float32(pipe.extend_start), s[idx], footprint[idx])
+        for j, idx in _groups(hits.pipe, len(self.scene.pieces)):
+            albedo[idx] = self.surfaces[j].sample(h[idx] + self.h_offsets[j], s[idx], footprint[idx])
         if hits.cap.any():
             albedo[hits.cap] *= np.float32(ap.cap_albedo)
         irr, spec = self._lighting(P, N, hits)

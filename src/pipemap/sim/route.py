@@ -28,8 +28,12 @@ _UP = np.array([0.0, 0.0, 1.0])
 class AxisPath:
     """Arc-length parametrised path: lines joined by circular arcs at every interior vertex."""
 
-    def __init__(self, vertices: np.ndarray, turn_radius: float, kink_radius: float = 2.0, turn_deg: float = 10.0):
+    def __init__(self, vertices: np.ndarray, turn_radius: float, kink_radius: float = 2.0, turn_deg: float = 10.0,
+                 radii: np.ndarray | None = None):
+        """`radii`: per vertex, a fillet radius that overrides the others (NaN: none), e.g. an elbow's
+        bend radius, so the path follows its arc exactly; it must fit between the neighbouring vertices."""
         v = np.asarray(vertices, float)
+        radii = np.full(len(v), np.nan) if radii is None else np.asarray(radii, float)
         if len(v) < 2:
             raise PipemapError("a route needs at least two points")
         seg = np.diff(v, axis=0)
@@ -47,9 +51,14 @@ class AxisPath:
                 continue
             rho = turn_radius if np.degrees(alpha) >= turn_deg else kink_radius
             T = rho * np.tan(alpha / 2)
-            T = min(T, 0.45 * seg_len[k - 1], 0.45 * seg_len[k])
+            if np.isfinite(radii[k]):
+                T = radii[k] * np.tan(alpha / 2)
+            else:
+                T = min(T, 0.45 * seg_len[k - 1], 0.45 * seg_len[k])
             tang[k] = T
             self._arcs[k] = (alpha, T / np.tan(alpha / 2))
+        if np.any(tang[:-1] + tang[1:] > seg_len + 1e-9):
+            raise PipemapError("a route's bends overlap: a straight stretch is shorter than its arcs need")
         self.pieces = []  # ("line", p0, d, length) | ("arc", A, d0, n_in, rho, alpha)
         vertex_s = [0.0]
         s = 0.0

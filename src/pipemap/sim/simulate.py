@@ -74,7 +74,8 @@ def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, ro
         if not spacing_m > 0:
             raise PipemapError(f"frame spacing must be positive, got {spacing_m}", key="spacing_m")
         setup.drive = replace(setup.drive, spacing_m=float(spacing_m))
-    path = AxisPath(setup.path_vertices, setup.drive.turn_radius_m)
+    path = AxisPath(setup.path_vertices, setup.drive.turn_radius_m,
+                    radii=setup.scene.fillet_radii(setup.path_vertices))
     if setup.still:
         n = frames or setup.frames or 1
         s = np.full(n, setup.drive.start_m)
