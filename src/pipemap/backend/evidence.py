@@ -9,6 +9,11 @@ STRAIGHT_THROUGH_DEG is a junction placed where they meet (or by the tee model);
 only when the points the camera saw around it show a side branch (`side_opening`), which also places it;
 without one it is dropped and reported, and the straight sections either side stay what they are.
 A pass with a straight section on one side only (the run starts or ends in it) is kept as it is.
+
+A pass whose axes turn is a tee when a pipe runs on past the point where they meet, and an elbow when
+none does (`elbow.pipe_beyond`); an elbow keeps the axes' meeting point (its vertex) and their angle,
+gets its bend radius from the wall of the bend (`elbow.fit_bend_radius`), and is not joined by the tee
+model, whose two cylinders meeting at a corner are not its shape.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipemap.backend.elbow import bend_of, fit_bend_radius, pipe_beyond
 from pipemap.backend.network_map import STRAIGHT_THROUGH_DEG, MappedJunction, section_points
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.backend.side_opening import fit_side_opening
@@ -38,18 +44,29 @@ class DroppedPass:
                 "angle_deg": round(self.angle_deg, 3), "reason": self.reason}
 
 
-def _opening(pipe_map: PipeMap, j: MappedJunction, order: np.ndarray, tids: np.ndarray, settings: Settings):
-    """The side opening near a straight-through pass, from the points seen around it."""
+def _pass_points(pipe_map: PipeMap, j: MappedJunction, order: np.ndarray, tids: np.ndarray,
+                 settings: Settings) -> np.ndarray:
+    """The points seen by the pass's keyframes and as many either side as the tee model takes."""
+    b = settings.bundle
+    lo = max(0, j.first - b.tee_hold_keyframes)
+    hi = min(len(pipe_map.keyframes) - 1, j.last + b.tee_attach_keyframes)
+    return pipe_map.points[order[section_points(pipe_map.keyframes, lo, hi, tids)]]
+
+
+def _end_cylinders(pipe_map: PipeMap, j: MappedJunction):
     by_number = {m.number: m for m in pipe_map.sections}
     red, blue = by_number.get(j.before), by_number.get(j.after)
-    through = next((c for c in (red.end if red else None, blue.start if blue else None,
-                                red.cylinder if red else None) if c is not None), None)
+    return (red.end if red else None), (blue.start if blue else None), red
+
+
+def _opening(pipe_map: PipeMap, j: MappedJunction, order: np.ndarray, tids: np.ndarray, settings: Settings):
+    """The side opening near a straight-through pass, from the points seen around it."""
+    end, start, red = _end_cylinders(pipe_map, j)
+    through = next((c for c in (end, start, red.cylinder if red else None) if c is not None), None)
     if through is None:
         return None
     b, e = settings.bundle, settings.evidence
-    lo = max(0, j.first - b.tee_hold_keyframes)
-    hi = min(len(pipe_map.keyframes) - 1, j.last + b.tee_attach_keyframes)
-    points = pipe_map.points[order[section_points(pipe_map.keyframes, lo, hi, tids)]]
+    points = _pass_points(pipe_map, j, order, tids, settings)
     return fit_side_opening(points, through, float(through.axial(j.centroid)), huber_m=b.huber_m, mad_k=b.mad_k,
                             outlier_passes=b.outlier_passes, reach_radii=e.opening_reach_radii,
                             min_points=e.opening_min_points, max_sigma_m=e.opening_max_sigma_radii * through.radius)
@@ -79,4 +96,28 @@ def weigh_junction_evidence(pipe_map: PipeMap, settings: Settings) -> tuple[Pipe
     return out, dropped
 
 
-__all__ = ["DroppedPass", "weigh_junction_evidence"]
+def recognise_elbows(pipe_map: PipeMap, radius: float, settings: Settings) -> PipeMap:
+    """The map with every turning pass that has no pipe running on past its vertex typed an elbow, with its
+    bend radius where the bend's wall fixes it."""
+    out = pipe_map.copy()
+    order = np.argsort(out.point_tracks)
+    tids = out.point_tracks[order]
+    b, e = settings.bundle, settings.evidence
+    for j in out.junctions:
+        if j.before is None or j.after is None or not j.angle_deg >= STRAIGHT_THROUGH_DEG:
+            continue
+        end, start, _ = _end_cylinders(out, j)
+        if end is None or start is None:
+            continue
+        points = _pass_points(out, j, order, tids, settings)
+        bend = bend_of(end, start, j.centroid)
+        if max(pipe_beyond(points, end, start, bend, 4 * b.huber_m)) >= e.opening_min_points:
+            continue  # a tee: its through pipe shows
+        fit = fit_bend_radius(points, bend, radius, huber_m=b.huber_m, mad_k=b.mad_k, outlier_passes=b.outlier_passes,
+                              min_points=e.opening_min_points)
+        j.type, j.method, j.angle_deg = "elbow", "elbow", bend.angle_deg
+        j.bend_radius_m = float("nan") if fit is None else fit.bend_radius_m
+    return out
+
+
+__all__ = ["DroppedPass", "weigh_junction_evidence", "recognise_elbows"]

@@ -75,6 +75,8 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
     by_number = {m.number: m for m in out.sections}
     reports = []
     for j in out.junctions:
+        if j.type == "elbow":  # one bent pipe, not two cylinders meeting: the VO's chaining stands
+            continue
         red, blue = by_number.get(j.before), by_number.get(j.after)
         if red is None or blue is None:
             reports.append(JoinReport(j.id, "kept the VO chaining: a straight section is missing on one side"))

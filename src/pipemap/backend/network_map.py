@@ -72,12 +72,18 @@ class MappedJunction:
     method: str  # "axes" | "straight-through" | "path" | "tee-model"
     gap_m: float = float("nan")  # closest-approach distance of the two axes
     through: str | None = None  # which side's pipe runs on through the tee ("red" = before, "blue" = after)
-    type: str = "tee"  # "tee" | "cross" (a straight-through pass that found openings on both sides)
+    type: str = "tee"  # "tee" | "cross" (a straight-through pass that found openings on both sides) | "elbow"
     opening: dict | None = None  # the side opening that placed a straight-through pass (SideOpening.to_dict)
+    bend_radius_m: float = float("nan")  # an elbow's, where its bend's wall fixed it
 
     def to_dict(self) -> dict:
-        return {"id": self.id, "type": self.type, "centroid": [round(float(v), 6) for v in self.centroid],
-                "keyframe": int(self.keyframe)}
+        d = {"id": self.id, "type": self.type, "centroid": [round(float(v), 6) for v in self.centroid],
+             "keyframe": int(self.keyframe)}
+        if self.type == "elbow":
+            d["angle_deg"] = round(float(self.angle_deg), 4)
+            if np.isfinite(self.bend_radius_m):
+                d["bend_radius_m"] = round(float(self.bend_radius_m), 5)
+        return d
 
 
 def section_points(keyframes: list[Keyframe], first: int, last: int, tids: np.ndarray) -> np.ndarray:
@@ -245,9 +251,9 @@ __all__ = ["MappedSection", "MappedJunction", "map_sections", "map_junctions", "
 def name_junctions(junctions: list[MappedJunction], radius: float, same_radii: float = 2.0) -> list[MappedJunction]:
     """Give every tee pass its tee's name: a pass whose centre lies within `same_radii` pipe radii of an
     earlier tee's is a revisit of it (after loop closure the two centres differ by the residual drift,
-    far less than the spacing of distinct tees). Names T1, T2, ... follow first passage. Returns one
-    MappedJunction per distinct tee, in the order the camera first passes them, its centre the mean
-    of its passes."""
+    far less than the spacing of distinct tees). Names follow first passage, by type: tees T1, T2, ...,
+    crosses X1, ..., elbows E1, .... Returns one MappedJunction per distinct junction, in the order the
+    camera first passes them, its centre the mean of its passes."""
     tees: list[list[MappedJunction]] = []
     for j in junctions:
         near = [t for t in tees if np.linalg.norm(t[0].centroid - j.centroid) < same_radii * radius]
@@ -256,14 +262,20 @@ def name_junctions(junctions: list[MappedJunction], radius: float, same_radii: f
         else:
             tees.append([j])
     out = []
-    for n, passes in enumerate(tees, 1):
+    counts: dict[str, int] = {}
+    for passes in tees:
+        kind = _kind(passes)
+        counts[kind] = counts.get(kind, 0) + 1
         for j in passes:
-            j.id = f"T{n}"
+            j.id = f"{_PREFIX[kind]}{counts[kind]}"
         first = passes[0]
         out.append(MappedJunction(first.id, np.mean([j.centroid for j in passes], axis=0), first.keyframe, first.first,
                                   first.last, first.before, first.after, first.angle_deg, first.method, first.gap_m,
-                                  first.through, _kind(passes), first.opening))
+                                  first.through, kind, first.opening, first.bend_radius_m))
     return out
+
+
+_PREFIX = {"tee": "T", "cross": "X", "elbow": "E"}
 
 
 def _kind(passes: list[MappedJunction]) -> str:

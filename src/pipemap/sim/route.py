@@ -47,7 +47,7 @@ class AxisPath:
         for k in range(1, len(v) - 1):
             d0, d1 = dirs[k - 1], dirs[k]
             alpha = float(np.arccos(np.clip(d0 @ d1, -1.0, 1.0)))
-            if alpha < 1e-9:
+            if alpha < 1e-6:  # straight on (arccos is only good to ~1e-8 near 0)
                 continue
             rho = turn_radius if np.degrees(alpha) >= turn_deg else kink_radius
             T = rho * np.tan(alpha / 2)
