@@ -221,6 +221,11 @@ class LoopClosureSettings(_Section):
     min_sigma_m: float = Field(0.001, ge=0, description="added to an edge's translation sigma (wall-fit error)")
     min_sigma_deg: float = Field(0.02, ge=0, description="added to an edge's rotation sigma")
     # The pose graph.
+    junction_edges: bool = Field(True, description="a tee passed twice ties its two passes' keyframes in the pose "
+                                 "graph: both measured the same tee frame (centre, through axis, branch), "
+                                 "backend/junction_loops.py")
+    junction_sigma_m: float = Field(0.003, gt=0, description="sigma of a pass's tee centre in such an edge")
+    junction_sigma_deg: float = Field(0.5, gt=0, description="sigma of a pass's tee axes in such an edge")
     odometry_sigma_m: float = Field(0.01, gt=0, description="odometry translation sigma after one metre (per sqrt m)")
     odometry_sigma_deg: float = Field(0.5, gt=0, description="odometry rotation sigma after one metre (per sqrt m)")
     robust_kernel: Literal["huber", "cauchy", "none"] = Field("huber", description="on loop-closure edges")

@@ -67,7 +67,9 @@ def _opening(pipe_map: PipeMap, j: MappedJunction, order: np.ndarray, tids: np.n
         return None
     b, e = settings.bundle, settings.evidence
     points = _pass_points(pipe_map, j, order, tids, settings)
-    return fit_side_opening(points, through, float(through.axial(j.centroid)), huber_m=b.huber_m, mad_k=b.mad_k,
+    # near the junction frames: the tee model's centre of two parallel cylinders can lie anywhere along them
+    guess = float(through.axial(pipe_map.poses[j.first:j.last + 1, :3, 3].mean(axis=0)))
+    return fit_side_opening(points, through, guess, huber_m=b.huber_m, mad_k=b.mad_k,
                             outlier_passes=b.outlier_passes, reach_radii=e.opening_reach_radii,
                             min_points=e.opening_min_points, max_sigma_m=e.opening_max_sigma_radii * through.radius)
 
@@ -89,6 +91,7 @@ def weigh_junction_evidence(pipe_map: PipeMap, settings: Settings) -> tuple[Pipe
                                        "opening shows in the points around it: not a junction"))
             continue
         j.centroid, j.method, j.type, j.opening = opening.centre, "side-opening", opening.kind, opening.to_dict()
+        j.branch = opening.direction
         centres = out.poses[j.first:j.last + 1, :3, 3]
         j.keyframe = j.first + int(np.argmin(np.linalg.norm(centres - j.centroid, axis=1)))
         kept.append(j)

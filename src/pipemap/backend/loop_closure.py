@@ -78,9 +78,10 @@ class LoopClosureResult:
     candidates: list[LoopCandidate]
     edges: list[tuple[LoopCandidate, LoopEdge]]  # the candidates whose relative pose was measured
     seconds: dict = field(default_factory=dict)
+    junction_edges: int = 0  # loop edges from tees passed twice (junction_loops)
 
     def summary(self) -> dict:
-        return {"candidates": len(self.candidates), "edges": len(self.edges),
+        return {"candidates": len(self.candidates), "edges": len(self.edges), "junction_edges": self.junction_edges,
                 "inliers": [e.inliers for _, e in self.edges],
                 "rms_deg": [float(np.degrees(e.rms_rad)) for _, e in self.edges], "seconds": self.seconds}
 
@@ -180,12 +181,12 @@ def cylinder_in_camera(section: StraightSection, pose, radius: float) -> Cylinde
 
 def close_loops(camera: CameraModel, poses, sections: list[StraightSection], junctions: list[TeeJunction],
                 image_of: Callable[[int], np.ndarray], radius: float, settings: Settings | None = None,
-                seed: int = 0) -> LoopClosureResult:
+                seed: int = 0, extra_edges: tuple[PoseEdge, ...] | list[PoseEdge] = ()) -> LoopClosureResult:
     """Candidates -> metric loop edges -> pose graph with temporal edges -> corrected keyframe poses.
 
     `poses` (N, 4, 4) are the keyframes' T_wc from odometry, `image_of(k)` returns keyframe k's image.
-    Pairs whose relative pose cannot be measured are dropped; without any edge the poses come back as
-    they were.
+    Pairs whose relative pose cannot be measured are dropped; `extra_edges` (loop edges measured otherwise:
+    junction_loops) join them; without any edge the poses come back as they were.
     """
     settings = settings or Settings()
     lc = settings.loop_closure
@@ -202,14 +203,15 @@ def close_loops(camera: CameraModel, poses, sections: list[StraightSection], jun
         if edge is not None:
             measured.append((c, edge))
     t1 = time.perf_counter()
-    if not measured:
+    if not measured and not extra_edges:
         return LoopClosureResult(poses.copy(), candidates, [], {"relative_pose": t1 - t0, "pose_graph": 0.0})
     edges = temporal_edges(poses, lc.odometry_sigma_m, np.radians(lc.odometry_sigma_deg))
     edges += [PoseEdge.from_covariance(c.i, c.j, e.T_ij, e.covariance, loop=True) for c, e in measured]
+    edges += list(extra_edges)
     kernel = None if lc.robust_kernel == "none" else lc.robust_kernel
     corrected = optimise_pose_graph(poses, edges, kernel=kernel, kernel_width=lc.kernel_width)
     return LoopClosureResult(corrected, candidates, measured,
-                             {"relative_pose": t1 - t0, "pose_graph": time.perf_counter() - t1})
+                             {"relative_pose": t1 - t0, "pose_graph": time.perf_counter() - t1}, len(extra_edges))
 
 
 def reanchor(points, owner_pose_before, owner_pose_after) -> np.ndarray:

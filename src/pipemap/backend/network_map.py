@@ -75,6 +75,7 @@ class MappedJunction:
     type: str = "tee"  # "tee" | "cross" (a straight-through pass that found openings on both sides) | "elbow"
     opening: dict | None = None  # the side opening that placed a straight-through pass (SideOpening.to_dict)
     bend_radius_m: float = float("nan")  # an elbow's, where its bend's wall fixed it
+    branch: np.ndarray | None = None  # world unit direction from the centre into the side branch (side opening)
 
     def to_dict(self) -> dict:
         d = {"id": self.id, "type": self.type, "centroid": [round(float(v), 6) for v in self.centroid],
@@ -271,7 +272,7 @@ def name_junctions(junctions: list[MappedJunction], radius: float, same_radii: f
         first = passes[0]
         out.append(MappedJunction(first.id, np.mean([j.centroid for j in passes], axis=0), first.keyframe, first.first,
                                   first.last, first.before, first.after, first.angle_deg, first.method, first.gap_m,
-                                  first.through, kind, first.opening, first.bend_radius_m))
+                                  first.through, kind, first.opening, first.bend_radius_m, first.branch))
     return out
 
 

@@ -78,6 +78,7 @@ class PipeMap:
         for j in self.junctions:
             if j.first > k:
                 j.centroid = R @ j.centroid + t
+                j.branch = None if j.branch is None else R @ j.branch
 
     def reanchor(self, poses: np.ndarray) -> None:
         """Corrected poses (N, 4, 4), not all by one rigid move (loop closure): each point moves rigidly with
@@ -87,6 +88,8 @@ class PipeMap:
         self.points = reanchor(self.points, self.poses[self.owners], poses[self.owners])
         for j in self.junctions:
             j.centroid = reanchor(j.centroid, self.poses[j.keyframe], poses[j.keyframe])
+            if j.branch is not None:
+                j.branch = poses[j.keyframe, :3, :3] @ self.poses[j.keyframe, :3, :3].T @ j.branch
         self.poses = poses.copy()
 
 

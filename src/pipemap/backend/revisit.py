@@ -1,7 +1,8 @@
 """Loop closure on the mapped network (fisheye paper III-E), and what hangs from the corrected poses.
 
 The mapped straight sections and tee passes go to `close_loops` (candidate pairs in a revisited
-pipe, metric relative poses from the images, pose graph). The corrected keyframe poses then carry
+pipe, metric relative poses from the images, pose graph), with an edge for every tee passed twice
+(`junction_loops`: both passes measured the same tee). The corrected keyframe poses then carry
 what hangs from them: each scene point moves rigidly with the first keyframe that saw it, each tee
 centre with its nearest keyframe; the sections' cylinders are fitted again afterwards.
 """
@@ -13,6 +14,7 @@ from typing import Callable
 
 import numpy as np
 
+from pipemap.backend.junction_loops import junction_identity_edges
 from pipemap.backend.loop_closure import StraightSection, TeeJunction, close_loops
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.camera.base import CameraModel
@@ -45,16 +47,19 @@ def close_network_loops(pipe_map: PipeMap, camera: CameraModel, image_of: Callab
     lc_sections = [StraightSection(m.first, m.last, m.cylinder.origin, m.cylinder.direction) for m in usable]
     lc_junctions = [TeeJunction(j.centroid, tuple(index[n] for n in (j.before, j.after) if n in index))
                     for j in pipe_map.junctions]
-    res = close_loops(camera, pipe_map.poses, lc_sections, lc_junctions, image_of, radius, settings, settings.seed)
-    if not res.candidates:
+    extra = junction_identity_edges(pipe_map, radius, settings.loop_closure) if settings.loop_closure.junction_edges \
+        else []
+    res = close_loops(camera, pipe_map.poses, lc_sections, lc_junctions, image_of, radius, settings, settings.seed,
+                      extra)
+    if not res.candidates and not extra:
         return pipe_map, RevisitReport("no revisit", seconds=sum(res.seconds.values()))
-    if not res.edges:
+    if not res.edges and not extra:
         return pipe_map, RevisitReport("no edge measured", len(res.candidates), 0, seconds=sum(res.seconds.values()))
     out = pipe_map.copy()
     out.reanchor(res.poses)
     shift = float(np.max(np.linalg.norm(out.poses[:, :3, 3] - pipe_map.poses[:, :3, 3], axis=1)))
-    return out, RevisitReport("closed", len(res.candidates), len(res.edges), shift, sum(res.seconds.values()),
-                              res.summary())
+    return out, RevisitReport("closed", len(res.candidates), len(res.edges) + len(extra), shift,
+                              sum(res.seconds.values()), res.summary())
 
 
 __all__ = ["RevisitReport", "close_network_loops"]

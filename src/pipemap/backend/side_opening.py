@@ -49,6 +49,7 @@ class SideOpening:
     points: int  # inliers on the branch wall
     rms_m: float  # RMS of their distances to the branch wall
     sigma_h_m: float  # standard deviation of h
+    direction: np.ndarray | None = None  # u, world, from I into the (larger) opening
 
     @property
     def kind(self) -> str:
@@ -142,8 +143,9 @@ def fit_side_opening(points: np.ndarray, through: Cylinder, h_guess: float, *, h
         phi, psi, side = phi + np.pi, -psi, -side
     openings = 2 if min((side > 0).sum(), (side < 0).sum()) >= CROSS_SHARE * len(side) else 1
     phi = float(np.angle(np.exp(1j * phi)))
+    u, _, _ = branch_direction(axis_frame(through.direction), phi, psi)
     return SideOpening(through.origin + c * through.direction, float(c), float(np.degrees(phi)),
-                       float(np.degrees(psi)), openings, int(inliers.sum()), rms, sigma_h)
+                       float(np.degrees(psi)), openings, int(inliers.sum()), rms, sigma_h, u)
 
 
 __all__ = ["SideOpening", "fit_side_opening", "branch_residuals", "branch_direction"]
