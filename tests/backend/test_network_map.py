@@ -138,3 +138,23 @@ def test_the_end_cylinder_fits_only_the_piece_next_to_the_tee():
     straight = first_leg(0.0)
     assert straight.end_length_m == 1.0 and tilt_deg(straight.end, [1.0, 0, 0]) < 0.03
     assert straight.to_dict()["end_length_m"] == 1.0
+
+
+def test_wall_pieces_stop_where_an_elbow_bends():
+    """At a tee the straight pieces reach the centre; at an elbow they stop at its tangent points,
+    rho tan(theta / 2) before and after the vertex, where the bend's torus wall takes over."""
+    from pipemap.backend.network_map import MappedJunction, MappedSection, wall_pieces
+    from pipemap.geometry.cylinder import Cylinder
+
+    x, y = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    before = MappedSection(0, 0, 9, Cylinder([-2.0, 0, 0], x, 0.15), None, None)
+    before.start_h, before.end_h = 0.0, 1.5
+    after = MappedSection(2, 20, 29, Cylinder([0, 0.5, 0], y, 0.15), None, None)
+    after.start_h, after.end_h = 0.0, 1.5
+    elbow = MappedJunction("E1", np.zeros(3), 15, 10, 19, 0, 2, 90.0, "elbow", type="elbow", bend_radius_m=0.45)
+    pieces = {p["name"]: p for p in wall_pieces([before, after], [elbow], [0, 0, 1.0])}
+    np.testing.assert_allclose(pieces["S0"]["end"], [-0.45, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(pieces["S2"]["start"], [0, 0.45, 0], atol=1e-6)
+    tee = MappedJunction("T1", np.zeros(3), 15, 10, 19, 0, 2, 90.0, "tee-model")
+    pieces = {p["name"]: p for p in wall_pieces([before, after], [tee], [0, 0, 1.0])}
+    np.testing.assert_allclose(pieces["S0"]["end"], [0, 0, 0], atol=1e-6)

@@ -284,13 +284,21 @@ def _kind(passes: list[MappedJunction]) -> str:
     return "cross" if any(j.type == "cross" for j in passes) else passes[0].type
 
 
+def _tangent_length(j: MappedJunction) -> float:
+    """How far before and after an elbow's vertex its bend takes over from the straight pipes (0 at a tee)."""
+    if j.type != "elbow" or not np.isfinite(j.bend_radius_m):
+        return 0.0
+    return float(j.bend_radius_m * np.tan(np.radians(j.angle_deg) / 2))
+
+
 def wall_pieces(mapped: list[MappedSection], junctions: list[MappedJunction], up) -> list[dict]:
     """The straight pieces of pipe wall the appearance map and unrolled images sample: each straight
     section's fitted cylinder, from its first camera (or the tee before it) to its last camera (or
     the tee after it). At a tee the pipe that runs on through it (`MappedJunction.through`, from
     the tee solve) is extended one radius past the centre I, to its far wall; the branch starts or
     ends at I, so that its cylinder cuts no false opening in the far wall. When the through pipe is
-    unknown both end at I. `up` is the world direction of 12 o'clock. Returned as the run.json
+    unknown both end at I. At an elbow both end where its bend begins (its wall is the bend's, a torus that
+    no straight piece samples). `up` is the world direction of 12 o'clock. Returned as the run.json
     "wall_pieces" records {name, start, end, radius, up, unroll}."""
     before = {j.after: j for j in junctions if j.after is not None}
     after = {j.before: j for j in junctions if j.before is not None}
@@ -303,10 +311,12 @@ def wall_pieces(mapped: list[MappedSection], junctions: list[MappedJunction], up
         sign = 1.0 if h1 >= h0 else -1.0
         if m.number in before:
             j = before[m.number]
-            h0 = float(cyl.axial(j.centroid)) - (sign * cyl.radius if j.through == "blue" else 0.0)
+            h0 = float(cyl.axial(j.centroid)) - (sign * cyl.radius if j.through == "blue" else 0.0) \
+                + sign * _tangent_length(j)
         if m.number in after:
             j = after[m.number]
-            h1 = float(cyl.axial(j.centroid)) + (sign * cyl.radius if j.through == "red" else 0.0)
+            h1 = float(cyl.axial(j.centroid)) + (sign * cyl.radius if j.through == "red" else 0.0) \
+                - sign * _tangent_length(j)
         if abs(h1 - h0) < 2 * cyl.radius * 0.25:
             continue
         start = cyl.origin + h0 * cyl.direction
