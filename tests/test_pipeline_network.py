@@ -36,7 +36,7 @@ def test_tee_centre_and_sections(tee_run):
     assert kinds == ["straight", "junction", "straight"]
     assert all(s["linked"] for s in run["sections"][1:])
     doc = yaml.safe_load((res.out_dir / "junctions.yaml").read_text())
-    assert doc["format"] == "pipemap-junctions/1" and len(doc["junctions"]) == 1
+    assert doc["format"] == "pipemap-junctions/2" and len(doc["junctions"]) == 1
     j = doc["junctions"][0]
     assert set(j) == {"id", "type", "centroid", "keyframe"} and j["type"] == "tee"
     # The estimate lives in the first keyframe's frame: compare through the trajectory's rigid alignment.
@@ -68,3 +68,27 @@ def test_extra_junction_completes_and_reports(tee_run, tmp_path):
     run = json.loads((tmp_path / "out" / "run.json").read_text())
     assert [s["kind"] for s in run["sections"]] == ["junction"]
     assert any("only one straight section" in p or "no straight section" in p for p in run["problems"])
+
+
+@pytest.fixture(scope="module")
+def straight_through_run(tmp_path_factory):
+    """tee-pass-loop route B from its start in T1's stub, straight through T1 and 1 m on."""
+    from pipemap.sim.simulate import simulate
+
+    base = tmp_path_factory.mktemp("through")
+    data = simulate("tee-pass-loop", base / "data", width=640, height=480, route="B", frames=80, seed=0,
+                    spacing_m=0.02)
+    return data, run_pipeline(data, base / "out", load_settings())
+
+
+def test_tee_passed_straight_through_is_placed_from_its_side_opening(straight_through_run):
+    """The two sections' axes run on in one line; the branch's wall places the tee along it (to about 2 mm
+    here; the junction frames' middle was 13-87 mm off)."""
+    data, res = straight_through_run
+    run = json.loads((res.out_dir / "run.json").read_text())
+    (p,) = run["junction_passes"]
+    assert p["method"] == "side-opening" and p["angle_deg"] < 1.0 and p["side_opening"]["openings"] == 1
+    m = evaluate(res.out_dir, data, write=False)
+    (j,) = yaml.safe_load((res.out_dir / "junctions.yaml").read_text())["junctions"]
+    truth = load_network(data / "ground_truth" / "network.yaml").junction("T1").centroid
+    assert np.linalg.norm(m.ate_rigid.alignment.apply(np.array(j["centroid"])) - truth) < 0.005

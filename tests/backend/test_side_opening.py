@@ -82,3 +82,37 @@ def test_no_opening_where_nothing_branches(through):
     # stray points off the wall (mismatched tracks, the far end's fittings) are not a branch
     P = np.vstack([P, through.origin + rng.normal(0, 0.4, (150, 3))])
     assert fit_side_opening(P, through, 0.0, huber_m=0.005, mad_k=3.0, outlier_passes=3, max_sigma_m=0.02 * R) is None
+
+
+def _pass_map(points: np.ndarray, through: Cylinder, centre_h: float):
+    """A map of one straight-through pass: 30 keyframes along the through axis, every point seen by all of
+    them, straight sections before and after a junction section around centre_h."""
+    from pipemap.backend.network_map import MappedJunction, MappedSection
+    from pipemap.backend.pipe_map import PipeMap
+    from pipemap.frontend.tracks import Keyframe
+
+    n = len(points)
+    ids = np.arange(n, dtype=np.int64)
+    kfs = [Keyframe(k, k, float(k), np.zeros((n, 2)), np.zeros((n, 3)), ids, np.ones(n, bool), np.zeros(n, bool),
+                    np.eye(3), np.zeros(3), True) for k in range(30)]
+    poses = np.stack([np.eye(4)] * 30)
+    poses[:, :3, 3] = through.origin + np.outer(centre_h + np.linspace(-0.6, 0.6, 30), through.direction)
+    before = MappedSection(0, 0, 11, through, None, through)
+    after = MappedSection(2, 18, 29, through, through, None)
+    j = MappedJunction("T1", poses[15, :3, 3].copy(), 15, 12, 17, 0, 2, 0.1, "tee-model")
+    return PipeMap.build(kfs, poses, points, ids, [before, after], [j])
+
+
+def test_evidence_places_a_pass_by_its_opening_and_drops_one_without(through):
+    from pipemap.backend.evidence import weigh_junction_evidence
+    from pipemap.config import Settings
+
+    rng = np.random.default_rng(6)
+    tee = _pass_map(_wall_points(rng, through, 0.8, [(1.0, 0.0)], n=3000), through, 0.8 + 0.5 * R)
+    out, dropped = weigh_junction_evidence(tee, Settings())
+    assert not dropped and out.junctions[0].method == "side-opening"
+    np.testing.assert_allclose(out.junctions[0].centroid, through.origin + 0.8 * through.direction, atol=1e-3)
+    assert tee.junctions[0].method == "tee-model"  # the map given is left as it was
+    plain = _pass_map(_wall_points(rng, through, 0.8, [], n=3000), through, 0.8)
+    out, dropped = weigh_junction_evidence(plain, Settings())
+    assert out.junctions == [] and [d.id for d in dropped] == ["T1"]
