@@ -110,6 +110,12 @@ class ClassificationSettings(_Section):
     ratio_threshold: float = Field(1.5, gt=0, description="straight if L_p / L is below this")
     min_cluster_keyframes: int = Field(5, gt=0, description="temporal filter: minimum straight/T run, in the frames "
                                                             "classified")
+    turn_deg: float | None = Field(4.0, gt=0, description="keyframes around which the viewing direction turns by "
+                                   "more than this over turn_window_keyframes are a junction section too: a bend "
+                                   "the images do not show (frontend/turning.py; a crawler's wobble is about 1 deg); "
+                                   "None: images only")
+    turn_window_keyframes: int = Field(20, ge=2, description="keyframes over which the turn is measured (keyframes "
+                                       "are spaced by image flow, about a fixed fraction of the pipe radius apart)")
 
 
 class BundleSettings(_Section):

@@ -25,6 +25,7 @@ import yaml
 
 from pipemap.backend.evidence import DroppedPass, recognise_elbows, weigh_junction_evidence
 from pipemap.backend.join import join_sections
+from pipemap.frontend.turning import turning_keyframes
 from pipemap.backend.network_map import (
     MappedJunction,
     MappedSection,
@@ -188,6 +189,9 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     sections' cylinders and the tee centres (III-D), the tee model and loop closure on the map."""
     vo = StraightVO(dataset.camera, dataset.radius_m, settings)
     junction = keyframe_labels(front.keyframes, front.classes)
+    c = settings.classification
+    if c.turn_deg is not None:
+        junction |= turning_keyframes(front.keyframes, c.turn_window_keyframes, c.turn_deg)
     for kf, j in zip(front.keyframes, junction):
         vo.add(kf, junction=bool(j))
     result = vo.finish()

@@ -1,0 +1,57 @@
+"""Where the pipe bends: keyframes around which the camera's viewing direction turns.
+
+The image classification sees a tee or a tight elbow by the dark far end of the pipe leaving the
+image centre; a long sweeping bend (ten diameters and more) turns the view so slowly that every
+frame still looks straight, and a straight section's bundle adjustment, whose wall is one cylinder
+bending by millimetres, cannot follow it. Bending is plain in the keyframes' relative rotations,
+which need no scale: a crawler in a straight pipe keeps its viewing direction to within its wobble
+(a degree or so), while in a bend the direction turns with the pipe. Keyframes are spaced by image
+flow, i.e. by a roughly fixed fraction of the pipe radius of travel, so a window of keyframes spans
+about the same length of pipe whatever the camera. A keyframe is turning when the optical axes of
+the keyframes half a window before and after it differ by more than the threshold (roll about the
+axis, which does not bend the path, does not count); the turning stretch is widened by half a window
+either side so that the straight sections either side keep clear of the bend's wall.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipemap.frontend.tracks import Keyframe
+
+
+def viewing_directions(keyframes: list[Keyframe]) -> tuple[np.ndarray, np.ndarray]:
+    """(optical axes (N, 3) in the frame of each keyframe's chain start, chain number (N,)): relative poses
+    chained from each keyframe that starts again after tracking was lost."""
+    z = np.zeros((len(keyframes), 3))
+    chain = np.zeros(len(keyframes), np.int64)
+    R_wc, c = np.eye(3), -1
+    for k, kf in enumerate(keyframes):
+        if k == 0 or not kf.pose_valid:
+            R_wc, c = np.eye(3), c + 1
+        else:
+            R_wc = R_wc @ np.asarray(kf.R, float).T  # X_this = R X_prev: camera k -> camera k-1 is R^T
+        z[k], chain[k] = R_wc[:, 2], c
+    return z, chain
+
+
+def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: float) -> np.ndarray:
+    """(N,) bool: keyframes within half a window of one around which the view turns by more than
+    `threshold_deg` over `window` keyframes."""
+    n = len(keyframes)
+    out = np.zeros(n, bool)
+    if n == 0 or window < 2:
+        return out
+    z, chain = viewing_directions(keyframes)
+    half = window // 2
+    k = np.arange(n)
+    a, b = np.clip(k - half, 0, n - 1), np.clip(k + half, 0, n - 1)
+    same = (chain[a] == chain[b]) & (b - a == 2 * half)
+    angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", z[a], z[b]), -1.0, 1.0)))
+    turning = same & (angle > threshold_deg)
+    for i in np.flatnonzero(turning):
+        out[max(0, i - 2 * half):i + 2 * half + 1] = True
+    return out
+
+
+__all__ = ["viewing_directions", "turning_keyframes"]

@@ -1,0 +1,45 @@
+"""Bends the images do not show: the keyframes' viewing direction turning beyond a crawler's wobble."""
+
+import numpy as np
+
+from pipemap.frontend.tracks import Keyframe
+from pipemap.frontend.turning import turning_keyframes, viewing_directions
+from pipemap.geometry.rotations import exp_so3
+
+
+def _keyframes(yaw_deg: np.ndarray, rng) -> list[Keyframe]:
+    """Keyframes whose camera yaws by the given angles (deg) plus a wobble of up to 1 deg in roll and pitch."""
+    wobble = np.radians(1.0) * np.sin(np.arange(len(yaw_deg)) / 7.0)[:, None] * np.array([1.0, 0.0, 1.0])
+    R_wc = [exp_so3(np.array([0.0, np.radians(y), 0.0]) + w) for y, w in zip(np.cumsum(yaw_deg), wobble)]
+    out = []
+    for k in range(len(R_wc)):
+        R = np.eye(3) if k == 0 else R_wc[k].T @ R_wc[k - 1]  # X_this = R X_prev
+        out.append(Keyframe(k, k, float(k), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64),
+                            np.zeros(0, bool), np.zeros(0, bool), R, np.zeros(3), k > 0))
+    return out
+
+
+def test_chained_directions_follow_the_yaw():
+    kfs = _keyframes(np.full(40, 1.0), np.random.default_rng(0))
+    z, chain = viewing_directions(kfs)
+    assert np.all(chain == 0)
+    turned = np.degrees(np.arccos(np.clip(z[0] @ z[-1], -1, 1)))
+    assert abs(turned - 39.0) < 2.5  # 39 deg of yaw, give or take the wobble's pitch
+
+
+def test_a_sweeping_bend_is_found_and_the_straight_pipe_either_side_is_not():
+    yaw = np.zeros(300)
+    yaw[120:180] = 0.5  # 30 deg over 60 keyframes: a bend of ten diameters
+    turning = turning_keyframes(_keyframes(yaw, np.random.default_rng(1)), 20, 4.0)
+    assert turning[125:175].all()
+    assert not turning[:90].any() and not turning[210:].any()
+
+
+def test_a_lost_track_starts_a_new_chain():
+    import dataclasses
+
+    kfs = _keyframes(np.full(60, 0.5), np.random.default_rng(2))
+    kfs[30] = dataclasses.replace(kfs[30], pose_valid=False)
+    assert viewing_directions(kfs)[1].max() == 1
+    turning = turning_keyframes(kfs, 20, 4.0)
+    assert turning[10:20].all() and turning[40:50].all()
