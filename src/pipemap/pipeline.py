@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from pipemap.backend.evidence import DroppedPass, recognise_elbows, weigh_junction_evidence
+from pipemap.backend.evidence import DroppedPass, type_turning_passes, weigh_junction_evidence
 from pipemap.backend.join import join_sections
 from pipemap.frontend.turning import turning_keyframes
 from pipemap.backend.network_map import (
@@ -204,7 +204,7 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     sections = fitted_sections(result.poses, result.points)
     pipe_map = PipeMap.build(vo.keyframes, result.poses, result.points, result.point_tracks, sections,
                              map_junctions(result.sections, sections, result.poses))
-    pipe_map = recognise_elbows(pipe_map, dataset.radius_m, settings)
+    pipe_map = type_turning_passes(pipe_map, dataset.radius_m, settings)
     joins = []
     if settings.bundle.tee_model:
         pipe_map, joins = join_sections(pipe_map, result.active, dataset.camera, dataset.radius_m, settings)

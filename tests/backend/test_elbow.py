@@ -66,3 +66,16 @@ def test_a_tee_has_pipe_beyond_its_vertex_and_an_elbow_none():
     P, a, b = _elbow_points(rng, 90.0, 0.45, through=True)
     on_a, on_b = pipe_beyond(P, a, b, bend, 0.02)
     assert on_a > 1000 and on_b == 0
+
+
+def test_a_cross_has_pipe_beyond_its_vertex_on_both_sides():
+    rng = np.random.default_rng(5)
+    P, a, b = _elbow_points(rng, 90.0, 0.45, through=True)
+    bend = bend_of(a, b, np.zeros(3))
+    d2 = bend.d2
+    f = np.cross(d2, [0, 0, 1.0])
+    h = rng.uniform(0, 0.6, 3000)
+    w = rng.uniform(-np.pi, np.pi, 3000)
+    opposite = np.outer(-h, d2) + 0.15 * (np.outer(np.cos(w), f) + np.outer(np.sin(w), [0, 0, 1.0]))
+    on_a, on_b = pipe_beyond(np.vstack([P, opposite]), a, b, bend, 0.02)
+    assert on_a > 1000 and on_b > 1000

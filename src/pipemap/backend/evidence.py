@@ -10,10 +10,10 @@ only when the points the camera saw around it show a side branch (`side_opening`
 without one it is dropped and reported, and the straight sections either side stay what they are.
 A pass with a straight section on one side only (the run starts or ends in it) is kept as it is.
 
-A pass whose axes turn is a tee when a pipe runs on past the point where they meet, and an elbow when
-none does (`elbow.pipe_beyond`); an elbow keeps the axes' meeting point (its vertex) and their angle,
-gets its bend radius from the wall of the bend (`elbow.fit_bend_radius`), and is not joined by the tee
-model, whose two cylinders meeting at a corner are not its shape.
+A pass whose axes turn is a tee when one pipe runs on past the point where they meet, a cross when
+both do, and an elbow when none does (`elbow.pipe_beyond`); an elbow keeps the axes' meeting point
+(its vertex) and their angle, gets its bend radius from the wall of the bend (`elbow.fit_bend_radius`),
+and is not joined by the tee model, whose two cylinders meeting at a corner are not its shape.
 """
 
 from __future__ import annotations
@@ -99,9 +99,9 @@ def weigh_junction_evidence(pipe_map: PipeMap, settings: Settings) -> tuple[Pipe
     return out, dropped
 
 
-def recognise_elbows(pipe_map: PipeMap, radius: float, settings: Settings) -> PipeMap:
-    """The map with every turning pass that has no pipe running on past its vertex typed an elbow, with its
-    bend radius where the bend's wall fixes it."""
+def type_turning_passes(pipe_map: PipeMap, radius: float, settings: Settings) -> PipeMap:
+    """The map with every turning pass typed by the pipe that runs on past its vertex: one pipe, a tee; both,
+    a cross; none, an elbow, with its bend radius where the bend's wall fixes it."""
     out = pipe_map.copy()
     order = np.argsort(out.point_tracks)
     tids = out.point_tracks[order]
@@ -114,8 +114,11 @@ def recognise_elbows(pipe_map: PipeMap, radius: float, settings: Settings) -> Pi
             continue
         points = _pass_points(out, j, order, tids, settings)
         bend = bend_of(end, start, j.centroid)
-        if max(pipe_beyond(points, end, start, bend, 4 * b.huber_m)) >= e.opening_min_points:
-            continue  # a tee: its through pipe shows
+        beyond = pipe_beyond(points, end, start, bend, 4 * b.huber_m)
+        if min(beyond) >= e.opening_min_points:
+            j.type = "cross"
+        if max(beyond) >= e.opening_min_points:
+            continue
         fit = fit_bend_radius(points, bend, radius, huber_m=b.huber_m, mad_k=b.mad_k, outlier_passes=b.outlier_passes,
                               min_points=e.opening_min_points)
         j.type, j.method, j.angle_deg = "elbow", "elbow", bend.angle_deg
@@ -123,4 +126,4 @@ def recognise_elbows(pipe_map: PipeMap, radius: float, settings: Settings) -> Pi
     return out
 
 
-__all__ = ["DroppedPass", "weigh_junction_evidence", "recognise_elbows"]
+__all__ = ["DroppedPass", "weigh_junction_evidence", "type_turning_passes"]
