@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from pipemap.backend.evidence import DroppedPass, type_turning_passes, weigh_junction_evidence
+from pipemap.backend.evidence import DroppedPass, fit_elbow_bends, type_turning_passes, weigh_junction_evidence
 from pipemap.backend.join import join_sections
 from pipemap.frontend.turning import turning_keyframes
 from pipemap.backend.network_map import (
@@ -208,6 +208,7 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     joins = []
     if settings.bundle.tee_model:
         pipe_map, joins = join_sections(pipe_map, result.active, dataset.camera, dataset.radius_m, settings)
+    pipe_map = fit_elbow_bends(pipe_map, dataset.radius_m, settings)
     pipe_map, dropped = weigh_junction_evidence(pipe_map, settings)
     revisit = RevisitReport("no revisit" if settings.loop_closure.enabled else "disabled")
     if settings.loop_closure.enabled and len(pipe_map.junctions) > 1:

@@ -89,8 +89,9 @@ def bend_residuals(points: np.ndarray, bend: Bend, rho: float, radius: float) ->
     return e, ((s - rho) * (ds - 1.0) / np.maximum(dist, 1e-12))[:, None]
 
 
-def on_arc(points: np.ndarray, bend: Bend, rho: float) -> np.ndarray:
-    """Which points lie, seen from the arc's centre, within the arc (less a margin at either end)."""
+def on_arc(points: np.ndarray, bend: Bend, rho: float, margin_deg: float = ARC_MARGIN_DEG) -> np.ndarray:
+    """Which points lie, seen from the arc's centre, within the arc less `margin_deg` at either end (a negative
+    margin widens it)."""
     C = bend.centre(rho)
     p = points - C
     q = p - np.outer(p @ bend.normal, bend.normal)
@@ -99,7 +100,7 @@ def on_arc(points: np.ndarray, bend: Bend, rho: float) -> np.ndarray:
     if along @ bend.d1 < 0:
         along = -along
     phi = np.degrees(np.arctan2(q @ along, q @ start))
-    return (phi > ARC_MARGIN_DEG) & (phi < bend.angle_deg - ARC_MARGIN_DEG)
+    return (phi > margin_deg) & (phi < bend.angle_deg - margin_deg)
 
 
 def fit_bend_radius(points: np.ndarray, bend: Bend, radius: float, *, huber_m: float, mad_k: float,

@@ -119,11 +119,32 @@ def type_turning_passes(pipe_map: PipeMap, radius: float, settings: Settings) ->
             j.type = "cross"
         if max(beyond) >= e.opening_min_points:
             continue
-        fit = fit_bend_radius(points, bend, radius, huber_m=b.huber_m, mad_k=b.mad_k, outlier_passes=b.outlier_passes,
-                              min_points=e.opening_min_points)
         j.type, j.method, j.angle_deg = "elbow", "elbow", bend.angle_deg
-        j.bend_radius_m = float("nan") if fit is None else fit.bend_radius_m
+        j.bend_radius_m = _bend_radius(points, bend, radius, settings)
     return out
 
 
-__all__ = ["DroppedPass", "weigh_junction_evidence", "type_turning_passes"]
+def _bend_radius(points: np.ndarray, bend, radius: float, settings: Settings) -> float:
+    b = settings.bundle
+    fit = fit_bend_radius(points, bend, radius, huber_m=b.huber_m, mad_k=b.mad_k, outlier_passes=b.outlier_passes,
+                          min_points=settings.evidence.opening_min_points)
+    return float("nan") if fit is None else fit.bend_radius_m
+
+
+def fit_elbow_bends(pipe_map: PipeMap, radius: float, settings: Settings) -> PipeMap:
+    """The map with every elbow's angle and bend radius from its final end cylinders and points (after the
+    tee model has joined its two pipes)."""
+    out = pipe_map.copy()
+    order = np.argsort(out.point_tracks)
+    tids = out.point_tracks[order]
+    for j in out.junctions:
+        end, start, _ = _end_cylinders(out, j)
+        if j.type != "elbow" or end is None or start is None:
+            continue
+        bend = bend_of(end, start, j.centroid)
+        j.angle_deg = bend.angle_deg
+        j.bend_radius_m = _bend_radius(_pass_points(out, j, order, tids, settings), bend, radius, settings)
+    return out
+
+
+__all__ = ["DroppedPass", "weigh_junction_evidence", "type_turning_passes", "fit_elbow_bends"]

@@ -10,6 +10,10 @@ same rigid correction (`PipeMap.move_after`), so the next tee starts from the co
 tee centre is the model's intersection point I. A junction without a straight section on both
 sides, whose end cylinders could not be fitted, or whose solve fails keeps the VO's chaining and its
 axes-based centre, and says why.
+
+An elbow is joined the same way with the wall of its bend left out of the cylinder term: its straight
+pipes are the two cylinders up to where the bend begins, the points on the bend's arc (`elbow.on_arc`,
+at the bend radius found so far) count by their reprojection only, and I is its vertex.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipemap.backend.bundle import Observations
+from pipemap.backend.elbow import ARC_MARGIN_DEG, bend_of, on_arc
 from pipemap.backend.junction import solve_junction
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.camera.base import CameraModel
@@ -75,8 +80,6 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
     by_number = {m.number: m for m in out.sections}
     reports = []
     for j in out.junctions:
-        if j.type == "elbow":  # one bent pipe, not two cylinders meeting: the VO's chaining stands
-            continue
         red, blue = by_number.get(j.before), by_number.get(j.after)
         if red is None or blue is None:
             reports.append(JoinReport(j.id, "kept the VO chaining: a straight section is missing on one side"))
@@ -93,12 +96,14 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
             reports.append(JoinReport(j.id, f"kept the VO chaining: only {len(sel)} points seen in the junction"))
             continue
         rows = order[sel]  # the junction's points in the map
+        on_wall = None if j.type != "elbow" else ~_bend_points(out.points[rows], red.end, blue.start, j, radius)
         fixed = [k - lo for k in range(lo, r_pose)]
         attached = [k - lo for k in range(b_pose + 1, hi + 1)]
         try:
             res = solve_junction(camera, out.poses[lo:hi + 1], out.points[rows], obs, red.end, blue.start,
                                  red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
-                                 radius=radius, settings=settings)
+                                 radius=radius, settings=settings, cylinder_points=on_wall,
+                                 through=None if j.type == "elbow" else "auto")
         except (ValueError, np.linalg.LinAlgError) as exc:
             reports.append(JoinReport(j.id, f"kept the VO chaining: the tee solve failed ({exc})"))
             continue
@@ -115,13 +120,19 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
         good = res.point_inliers & np.all(np.isfinite(res.points), axis=1)
         out.points[rows[good]] = res.points[good]
         j.centroid = np.asarray(res.intersection, float)
-        j.method = "tee-model"
+        j.method = "elbow" if j.type == "elbow" else "tee-model"
         j.through = res.through
         j.angle_deg = float(res.model.angle_deg)
         reports.append(JoinReport(j.id, "tee-model", n, len(sel), len(obs), float(res.rms_px),
                                   float(res.cylinder_rms_m), float(res.model.angle_deg), float(moved), float(angle),
                                   float(res.time_s)))
     return out, reports
+
+
+def _bend_points(points: np.ndarray, end, start, j, radius: float) -> np.ndarray:
+    """Which points lie on an elbow's bend (at its fitted bend radius, or two diameters before one is known)."""
+    rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
+    return on_arc(points, bend_of(end, start, j.centroid), rho, margin_deg=-ARC_MARGIN_DEG)
 
 
 __all__ = ["JoinReport", "join_sections"]
