@@ -7,10 +7,11 @@ bending by millimetres, cannot follow it. Bending is plain in the keyframes' rel
 which need no scale: a crawler in a straight pipe keeps its viewing direction to within its wobble
 (a degree or so), while in a bend the direction turns with the pipe. Keyframes are spaced by image
 flow, i.e. by a roughly fixed fraction of the pipe radius of travel, so a window of keyframes spans
-about the same length of pipe whatever the camera. A keyframe is turning when the optical axes of
-the keyframes half a window before and after it differ by more than the threshold (roll about the
-axis, which does not bend the path, does not count); the turning stretch is widened by half a window
-either side so that the straight sections either side keep clear of the bend's wall.
+about the same length of pipe whatever the camera. A window turns when the optical axes of its first
+and last keyframes differ by more than the threshold (roll about the axis, which does not bend the
+path, does not count); every keyframe of a turning window is in the bend's junction section, so the
+straight sections either side keep clear of the bend's wall without swallowing the short straight
+stretches between bends close together.
 """
 
 from __future__ import annotations
@@ -36,8 +37,8 @@ def viewing_directions(keyframes: list[Keyframe]) -> tuple[np.ndarray, np.ndarra
 
 
 def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: float) -> np.ndarray:
-    """(N,) bool: keyframes within half a window of one around which the view turns by more than
-    `threshold_deg` over `window` keyframes."""
+    """(N,) bool: keyframes of any window of `window` keyframes over which the view turns by more than
+    `threshold_deg`."""
     n = len(keyframes)
     out = np.zeros(n, bool)
     if n == 0 or window < 2:
@@ -50,7 +51,7 @@ def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: flo
     angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", z[a], z[b]), -1.0, 1.0)))
     turning = same & (angle > threshold_deg)
     for i in np.flatnonzero(turning):
-        out[max(0, i - 2 * half):i + 2 * half + 1] = True
+        out[max(0, i - half):i + half + 1] = True
     return out
 
 
