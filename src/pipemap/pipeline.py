@@ -191,7 +191,7 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     junction = keyframe_labels(front.keyframes, front.classes)
     c = settings.classification
     if c.turn_deg is not None:
-        junction |= turning_keyframes(front.keyframes, c.turn_window_keyframes, c.turn_deg)
+        junction |= turning_keyframes(front.keyframes, c.turn_window_keyframes, c.turn_deg, junction)
     for kf, j in zip(front.keyframes, junction):
         vo.add(kf, junction=bool(j))
     result = vo.finish()

@@ -43,3 +43,13 @@ def test_a_lost_track_starts_a_new_chain():
     assert viewing_directions(kfs)[1].max() == 1
     turning = turning_keyframes(kfs, 20, 4.0)
     assert turning[10:20].all() and turning[40:50].all()
+
+
+def test_a_classified_junction_is_left_to_the_classification():
+    yaw = np.zeros(200)
+    yaw[95:105] = 9.0  # a tee's 90 deg turn over ten keyframes, which the images see
+    classified = np.zeros(200, bool)
+    classified[90:110] = True
+    turning = turning_keyframes(_keyframes(yaw, np.random.default_rng(3)), 20, 4.0, classified)
+    assert not turning.any()
+    assert turning_keyframes(_keyframes(yaw, np.random.default_rng(3)), 20, 4.0)[80:120].all()

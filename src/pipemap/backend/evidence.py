@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipemap.backend.elbow import bend_of, fit_bend_radius, pipe_beyond
+from pipemap.backend.elbow import ARC_MARGIN_DEG, bend_of, bend_residuals, fit_bend_radius, on_arc, pipe_beyond
 from pipemap.backend.network_map import STRAIGHT_THROUGH_DEG, MappedJunction, section_points
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.backend.side_opening import fit_side_opening
@@ -114,13 +114,16 @@ def type_turning_passes(pipe_map: PipeMap, radius: float, settings: Settings) ->
             continue
         points = _pass_points(out, j, order, tids, settings)
         bend = bend_of(end, start, j.centroid)
+        rho = _bend_radius(points, bend, radius, settings)
+        if np.isfinite(rho):  # a gentle bend's wall runs on past its vertex: it is not a pipe beyond it
+            off = np.abs(bend_residuals(points, bend, rho, radius)[0]) > 4 * b.huber_m
+            points = points[off | ~on_arc(points, bend, rho, margin_deg=-ARC_MARGIN_DEG)]
         beyond = pipe_beyond(points, end, start, bend, 4 * b.huber_m)
         if min(beyond) >= e.opening_min_points:
             j.type = "cross"
         if max(beyond) >= e.opening_min_points:
             continue
-        j.type, j.method, j.angle_deg = "elbow", "elbow", bend.angle_deg
-        j.bend_radius_m = _bend_radius(points, bend, radius, settings)
+        j.type, j.method, j.angle_deg, j.bend_radius_m = "elbow", "elbow", bend.angle_deg, rho
     return out
 
 

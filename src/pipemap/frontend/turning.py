@@ -10,8 +10,8 @@ flow, i.e. by a roughly fixed fraction of the pipe radius of travel, so a window
 about the same length of pipe whatever the camera. A window turns when the optical axes of its first
 and last keyframes differ by more than the threshold (roll about the axis, which does not bend the
 path, does not count); every keyframe of a turning window is in the bend's junction section, so the
-straight sections either side keep clear of the bend's wall without swallowing the short straight
-stretches between bends close together.
+straight sections either side keep clear of the bend's wall. Only bends the images missed are looked
+for: windows that reach a classified junction are left to the classification.
 """
 
 from __future__ import annotations
@@ -36,9 +36,12 @@ def viewing_directions(keyframes: list[Keyframe]) -> tuple[np.ndarray, np.ndarra
     return z, chain
 
 
-def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: float) -> np.ndarray:
+def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: float,
+                      classified: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: keyframes of any window of `window` keyframes over which the view turns by more than
-    `threshold_deg`."""
+    `threshold_deg`, among the windows that hold no keyframe the images already classified as a junction
+    (`classified`, (N,) bool): a tee or tight elbow turns the view as it should, and widening its section
+    by the window would swallow the straight pipe between junctions close together."""
     n = len(keyframes)
     out = np.zeros(n, bool)
     if n == 0 or window < 2:
@@ -50,6 +53,9 @@ def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: flo
     same = (chain[a] == chain[b]) & (b - a == 2 * half)
     angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", z[a], z[b]), -1.0, 1.0)))
     turning = same & (angle > threshold_deg)
+    if classified is not None:
+        seen = np.concatenate([[0], np.cumsum(np.asarray(classified, bool))])
+        turning &= seen[b + 1] - seen[a] == 0
     for i in np.flatnonzero(turning):
         out[max(0, i - half):i + half + 1] = True
     return out
