@@ -65,12 +65,15 @@ def match_descriptors(
     if max_flow_px is not None and points_i is not None and points_j is not None:
         pi = np.asarray(points_i, np.float32)
         pj = np.asarray(points_j, np.float32)
-        d2 = np.subtract.outer(pi[:, 0], pj[:, 0])
-        np.multiply(d2, d2, out=d2)
-        dy = np.subtract.outer(pi[:, 1], pj[:, 1])
-        np.multiply(dy, dy, out=dy)
-        d2 += dy
-        sim[d2 > np.float32(max_flow_px**2)] = -2.0
+        far = np.float32(max_flow_px**2)
+        # 64 rows at a time, so that the squared distances stay in cache (each entry is its own test)
+        for s in range(0, len(pi), 64):
+            d2 = np.subtract.outer(pi[s:s + 64, 0], pj[:, 0])
+            np.multiply(d2, d2, out=d2)
+            dy = np.subtract.outer(pi[s:s + 64, 1], pj[:, 1])
+            np.multiply(dy, dy, out=dy)
+            d2 += dy
+            np.putmask(sim[s:s + 64], d2 > far, -2.0)
     rows = np.arange(sim.shape[0])
     best_j = np.argmax(sim, axis=1)
     best = sim[rows, best_j].copy()

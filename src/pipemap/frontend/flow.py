@@ -26,6 +26,23 @@ def _design(d: np.ndarray) -> np.ndarray:
     return np.stack([np.ones_like(u), u, v, 0.5 * u * u, u * v, 0.5 * v * v], axis=-1)
 
 
+def _fit(X: np.ndarray, Y: np.ndarray, w: np.ndarray, max_residual_px: float):
+    """Weighted least-squares fits Y ~ X coef per point (X (M, k, cols), Y (M, k, 2), w (M, k)):
+    (well conditioned (M,), coef (M, cols, 2), the weights of the next pass (M, k))."""
+    cols = X.shape[2]
+    Xc = np.ascontiguousarray(X)
+    XtW = np.swapaxes(Xc * w[..., None], 1, 2)
+    A = XtW @ Xc
+    b = XtW @ Y
+    eig = np.linalg.eigvalsh(A)
+    good = eig[:, 0] > 1e-6 * np.maximum(eig[:, -1], 1e-30)
+    A[~good] = np.eye(cols)
+    coef = np.linalg.solve(A, b)  # (M, cols, 2)
+    res = np.linalg.norm(Xc @ coef - Y, axis=2)
+    sigma = mad_sigma(res, centre=0.0, axis=1, keepdims=True)
+    return good, coef, (res <= np.maximum(3.0 * sigma, max_residual_px)).astype(float)
+
+
 def local_quadratic_motion(src: np.ndarray, dst: np.ndarray, at: np.ndarray, neighbours: int = 32,
                            max_residual_px: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit dst = c + J d + 1/2 d^T H_k d around each point of `at` (M, 2) to the `neighbours` matches
@@ -50,19 +67,18 @@ def local_quadratic_motion(src: np.ndarray, dst: np.ndarray, at: np.ndarray, nei
     X = _design(d)  # (M, k, 6)
     Y = dst[idx] - at[:, None, :]  # (M, k, 2)
     w = np.ones(idx.shape)
-    # Affine fits first (fewer unknowns, less pulled by a wrong match), then the quadratic one.
+    # Affine fits first (fewer unknowns, less pulled by a wrong match), then the quadratic one. A fit
+    # repeated with the same weights gives the same result, so a repeat refits only the points whose
+    # weights changed (each point's fit is its own).
+    rows, last = np.arange(m), 0
     for cols in (3, 3, 6, 6, 6):
-        Xc = np.ascontiguousarray(X[..., :cols])
-        XtW = np.swapaxes(Xc * w[..., None], 1, 2)
-        A = XtW @ Xc
-        b = XtW @ Y
-        eig = np.linalg.eigvalsh(A)
-        good = eig[:, 0] > 1e-6 * np.maximum(eig[:, -1], 1e-30)
-        A[~good] = np.eye(cols)
-        coef = np.linalg.solve(A, b)  # (M, cols, 2)
-        res = np.linalg.norm(Xc @ coef - Y, axis=2)
-        sigma = mad_sigma(res, centre=0.0, axis=1, keepdims=True)
-        w = (res <= np.maximum(3.0 * sigma, max_residual_px)).astype(float)
+        if cols != last:
+            rows, last = np.arange(m), cols
+            good, coef = np.zeros(m, bool), np.zeros((m, cols, 2))
+        good[rows], coef[rows], w_rows = _fit(X[rows, :, :cols], Y[rows], w[rows], max_residual_px)
+        changed = np.any(w_rows != w[rows], axis=1)
+        w[rows] = w_rows
+        rows = rows[changed]
     # A point at the edge of its neighbourhood (the rim of the view, the dark far end of the pipe)
     # would take its second derivatives from an extrapolation.
     centred = np.linalg.norm((w[:, None, :] @ d)[:, 0] / np.maximum(w.sum(axis=1), 1)[:, None], axis=1) < 0.4

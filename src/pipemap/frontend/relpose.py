@@ -115,8 +115,20 @@ def five_point(bearings_i: np.ndarray, bearings_j: np.ndarray) -> tuple[np.ndarr
     return E, sample_ids[sample_of]
 
 
-def sampson_angle(E: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray) -> np.ndarray:
-    """Spherical Sampson error (radians) of N pairs under one (3, 3) or H (H, 3, 3) matrices -> (N,) / (H, N)."""
+def pair_outers(bearings_i: np.ndarray, bearings_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The outer products (N, 9) eta_j eta_i^T, eta_i eta_i^T, eta_j eta_j^T that `sampson_angle` takes
+    its quadratic forms over: computed once where many matrices are scored against the same pairs."""
+    n = bearings_i.shape[0]
+    outer_ji = (bearings_j[:, :, None] * bearings_i[:, None, :]).reshape(n, 9)
+    outer_ii = (bearings_i[:, :, None] * bearings_i[:, None, :]).reshape(n, 9)
+    outer_jj = (bearings_j[:, :, None] * bearings_j[:, None, :]).reshape(n, 9)
+    return outer_ji, outer_ii, outer_jj
+
+
+def sampson_angle(E: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray,
+                  outers: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Spherical Sampson error (radians) of N pairs under one (3, 3) or H (H, 3, 3) matrices -> (N,) / (H, N).
+    `outers`: `pair_outers(bearings_i, bearings_j)`, when the caller has them."""
     # All three terms are quadratic forms, so each is one matrix product over the hypotheses:
     # e = eta_j^T E eta_i, |E eta_i|^2 = eta_i^T E^T E eta_i, |E^T eta_j|^2 = eta_j^T E E^T eta_j.
     E = np.asarray(E, float)
@@ -124,9 +136,7 @@ def sampson_angle(E: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray)
     ete = (np.swapaxes(E, -1, -2) @ E).reshape(-1, 9)
     eet = (E @ np.swapaxes(E, -1, -2)).reshape(-1, 9)
     n = bearings_i.shape[0]
-    outer_ji = (bearings_j[:, :, None] * bearings_i[:, None, :]).reshape(n, 9)
-    outer_ii = (bearings_i[:, :, None] * bearings_i[:, None, :]).reshape(n, 9)
-    outer_jj = (bearings_j[:, :, None] * bearings_j[:, None, :]).reshape(n, 9)
+    outer_ji, outer_ii, outer_jj = pair_outers(bearings_i, bearings_j) if outers is None else outers
     # einsum rather than BLAS: these products are too thin for threaded GEMM to pay off.
     a2 = np.einsum("hk,nk->hn", flat, outer_ji) ** 2
     # Squared gradients in the two tangent planes: |E eta_i|^2 - e^2 and |E^T eta_j|^2 - e^2.
@@ -208,9 +218,11 @@ def refine_pose(R: np.ndarray, t: np.ndarray, bearings_i: np.ndarray, bearings_j
         tp = t + p[3:] @ tangent
         return Rp, tp / np.linalg.norm(tp)
 
+    outers = pair_outers(bearings_i, bearings_j)  # the pairs stay, only the pose moves
+
     def residuals(p):
         Rp, tp = pose(p)
-        return sampson_angle(essential_from_pose(Rp, tp), bearings_i, bearings_j) / scale
+        return sampson_angle(essential_from_pose(Rp, tp), bearings_i, bearings_j, outers) / scale
 
     result = least_squares(residuals, np.zeros(5), loss="soft_l1", f_scale=1.0, x_scale=1e-3, max_nfev=50,
                            ftol=1e-12, xtol=1e-12)
@@ -239,6 +251,8 @@ def estimate_relative_pose(
     th2 = threshold_rad**2
     # Hypotheses are ranked on a random subset: enough to tell them apart, a fraction of the cost.
     scored = rng.choice(n, score_subset, replace=False) if n > score_subset else np.arange(n)
+    bi_scored, bj_scored = bi[scored], bj[scored]
+    outers = pair_outers(bi_scored, bj_scored)
     best_cost, best_E, trials, needed = np.inf, None, 0, max_trials
     while trials < min(needed, max_trials):
         # Five distinct indices per sample: argsort of random keys is a batched choice without replacement.
@@ -247,7 +261,7 @@ def estimate_relative_pose(
         E, _ = five_point(bi[samples], bj[samples])
         if len(E) == 0:
             continue
-        err = sampson_angle(E, bi[scored], bj[scored])
+        err = sampson_angle(E, bi_scored, bj_scored, outers)
         cost = np.minimum(err * err, th2).sum(axis=1)
         h = int(np.argmin(cost))
         if cost[h] < best_cost:
