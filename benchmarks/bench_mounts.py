@@ -98,11 +98,13 @@ def run_case(args, mount: float, seed: int, root: Path, method: str) -> dict:
     d = evaluate(out, root, write=False).distance
     m = mount_rows(run, root)
     entry = {"mount_deg": mount, "seed": seed, "dataset": root.name, "method": method, "frames": frames, **extra,
-             "scale_source": run.get("scale_source"), "mount": m, "seconds": round(wall, 1), **distance_rows(d)}
+             "scale_source": run.get("scale_source"), "mount": m, "rating": run.get("quality", {}).get("rating"),
+             "offset_sigma_fraction": run.get("camera_offset_m", {}).get("sigma_fraction"), "seconds": round(wall, 1),
+             **distance_rows(d)}
     err = "" if m is None else (f"  mount {m['estimate']['angle_to_axis_deg']:6.2f} deg "
                                 f"({m['error']['angle_deg']:+.2f}), C_X {m['error']['C_X_mm']:+.2f} mm, "
                                 f"C_Y {m['error']['C_Y_mm']:+.2f} mm [{m['estimate']['source']}]")
-    print(f"{mount:4g} deg s{seed} {method:16s} {distance_text(d)}{err}  {wall:5.0f} s", flush=True)
+    print(f"{mount:4g} deg s{seed} {method:16s} {distance_text(d)}{err} {entry['rating']}  {wall:5.0f} s", flush=True)
     return entry
 
 

@@ -60,6 +60,11 @@ def true_offset(root: Path) -> list[float]:
     return [float(gt.positions[0, 1]), float(gt.positions[0, 2])]
 
 
+def _sigma_text(fraction: float | None) -> str:
+    """The kept offset's sigma, a fraction of the wall distance (none for eqs. 45-49 or a measured offset)."""
+    return "" if fraction is None else f", sigma {100 * fraction:.2f} %"
+
+
 def run_case(args, case: str, root: Path) -> dict:
     out = Path(args.data) / "results" / f"{root.name}-sparse-cylinder"
     shutil.rmtree(out, ignore_errors=True)
@@ -82,14 +87,18 @@ def run_case(args, case: str, root: Path) -> dict:
                       "batch_rms_px": round(float(res.offset_rms_px), 3),
                       "batch_sigma_mm": None if run["camera_offset_m"].get("batch_sigma_m") is None else
                       [round(x * 1e3, 3) for x in run["camera_offset_m"]["batch_sigma_m"]],
-                      "source": run["camera_offset_m"].get("source")},
+                      "source": run["camera_offset_m"].get("source"),
+                      "sigma_fraction": run["camera_offset_m"].get("sigma_fraction"),
+                      "estimates": run["camera_offset_m"].get("estimates")},
         "overrides": overrides, "refinement_dof": run.get("refinement_dof"),
+        "rating": run.get("quality", {}).get("rating"),
         "frames_per_second": round(res.frames / (res.seconds["features"] + res.seconds["motion"]), 2),
         "seconds": {k: round(v, 1) for k, v in res.seconds.items()} | {"wall": round(wall, 1)},
         **distance_rows(d), "report_abs_error_pct": REPORT[case],
     }
     print(f"{case:21s} {distance_text(d)}  C_Y {res.offset[1] * 1e3:6.2f} mm (true {truth[1] * 1e3:6.2f})"
-          f" [{entry['offset_mm']['source']}]  {entry['frames_per_second']:5.1f} frames/s", flush=True)
+          f" [{entry['offset_mm']['source']}{_sigma_text(entry['offset_mm']['sigma_fraction'])}] {entry['rating']}"
+          f"  {entry['frames_per_second']:5.1f} frames/s", flush=True)
     return entry
 
 

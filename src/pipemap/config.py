@@ -341,12 +341,20 @@ class SparseSettings(_Section):
     offset_measured: bool = Field(False, description="initial_offset_m was measured on the robot (as in the report): "
                                   "kept when the batch cannot determine the offset (narrow lens, large pipe)")
     offset_long_keyframes: int = Field(100, gt=1, description="the bundle batch again over this many keyframes, "
-                                       "kept where it determines the offset better; where neither does and none "
-                                       "was measured, eqs. 45-49 over them (<= offset_batch_keyframes: off)")
+                                       "kept where its offset's sigma is smaller than the first batch's and within "
+                                       "offset_max_sigma; where neither bundle estimate is within it and none was "
+                                       "measured, eqs. 45-49 over them, kept where offset_report_max_z admits them, "
+                                       "else the bundle estimate with the smaller sigma (<= offset_batch_keyframes: "
+                                       "off)")
+    offset_report_max_z: float = Field(3.0, gt=0, description="long batch: eqs. 45-49 replace the better bundle "
+                                       "estimate of an undetermined offset only where they lie within this many of "
+                                       "its standard deviations of it (they hold every keyframe at one rotation, "
+                                       "so a robot's wobble biases them; a bundle estimate that rules their value "
+                                       "out is kept)")
     offset_long_lag: int = Field(10, gt=0, description="long batch: pairs of keyframes at most this far apart")
     offset_long_step: int = Field(3, gt=0, description="long batch: the bundle batch takes every this-th keyframe (the "
                                   "span of wall seen fixes the offset, not the number of keyframes); eqs. 45-49 "
-                                  "over all of them only where that leaves the offset undetermined")
+                                  "over all of them")
     refine_every: int = Field(50, gt=0, description="N: 6-DOF sliding refinement over the previous 2N")
     refine_passes: int = Field(2, gt=0)
     refine_dof: Literal["auto", "six", "crawler", "bundle"] = Field(

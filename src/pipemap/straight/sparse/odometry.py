@@ -7,11 +7,14 @@ estimates to S(g). When the batch of the first `offset_batch_keyframes` keyframe
 their poses, the wall points and the axis are solved together (5.3.2 as a bundle adjustment,
 sparse/batch.py), from the report's square start and from the camera turned to its direction of
 travel (any mount), and their estimates in S(g) recomputed; at `offset_long_keyframes` the batch
-runs again over every `offset_long_step`-th keyframe, kept where it knows the offset better, and
-where neither determines it, eqs. 45-49 run over them all. Every `refine_every` keyframes the
-previous 2N are refined (5.3.3, `refine_dof`): together in one bundle adjustment on the wall where
-the batch determined the offset, or, where it could not, keeping the camera mount and moving each
-keyframe only about and along the axis; the end of the run gets the same treatment.
+runs again over every `offset_long_step`-th keyframe, kept where it determines the offset better than
+the first; where neither determines it, eqs. 45-49 run over them all and are kept only where they agree
+with the better bundle estimate within its own uncertainty (`offset_report_max_z`), else that estimate
+is. Every
+`refine_every` keyframes the previous 2N are refined (5.3.3, `refine_dof`): together in one bundle
+adjustment on the wall where the batch determined the offset, or, where it could not, keeping the
+camera mount and moving each keyframe only about and along the axis; the end of the run gets the same
+treatment.
 """
 
 from __future__ import annotations
@@ -28,10 +31,46 @@ from pipemap.straight.sparse.geometry import initial_pose, rotation_from_travel,
 from pipemap.straight.sparse.keyframes import KeyframeLink, View
 from pipemap.straight.sparse.motion import (KeyframeState, estimate_one_dof, gate_outliers, refine_crawler,
                                             refine_six_dof)
-from pipemap.straight.sparse.offset import OffsetBatch, optimise_offset
+from pipemap.straight.sparse.offset import OffsetBatch, OffsetResult, optimise_offset
 from pipemap.straight.sparse.sums import WallSums
 
 _MAX_OFFSET_FRACTION = 0.9  # a batch that puts the camera nearer the wall than this has failed
+
+
+@dataclass(frozen=True)
+class OffsetEstimate:
+    """One estimate of the first camera's offset that the batches made, kept or not (run.json lists them)."""
+
+    source: str  # "batch", "long bundle" or "long batch" (eqs. 45-49)
+    offset: np.ndarray  # (C_X, C_Y)
+    sigma: np.ndarray | None = None  # (2,) standard deviations (bundle only)
+    sigma_fraction: float = np.inf  # hypot(sigma) / the distance to the wall (bundle only)
+    z: float | None = None  # eqs. 45-49: distance from the best bundle estimate in its standard deviations
+    kept: bool = False
+
+    def to_dict(self) -> dict:
+        return {"source": self.source, "C_X_m": float(self.offset[0]), "C_Y_m": float(self.offset[1]),
+                "sigma_m": None if self.sigma is None else [float(x) for x in self.sigma],
+                "sigma_fraction": float(self.sigma_fraction) if np.isfinite(self.sigma_fraction) else None,
+                "z": self.z, "kept": self.kept}
+
+
+def offset_agreement(offset, best: np.ndarray, sigma: np.ndarray) -> float:
+    """How far `offset` lies from the bundle estimate `best` in that estimate's standard deviations `sigma`
+    (the Mahalanobis distance with their diagonal covariance)."""
+    d = (np.asarray(offset, float) - np.asarray(best, float)) / np.maximum(np.asarray(sigma, float), 1e-12)
+    return float(np.hypot(*d))
+
+
+def report_agrees(offset, best: "BatchSummary", max_z: float) -> tuple[bool, float]:
+    """Eqs. 45-49's offset may replace the best bundle estimate `best` only where the bundle's own uncertainty
+    admits it: within max_z of its standard deviations (no sigma: nothing says otherwise). Eqs. 45-49 hold every
+    keyframe at one rotation, so a robot's wobble biases them where the bundle, which gives every keyframe its
+    own pose, is not; where the bundle knows the offset well enough to reject their value, it is kept."""
+    if best.sigma is None or not np.all(np.isfinite(best.sigma)):
+        return True, np.nan
+    z = offset_agreement(offset, best.offset, best.sigma)
+    return bool(z <= max_z), z
 
 
 @dataclass(frozen=True)
@@ -45,9 +84,10 @@ class BatchSummary:
     sigma: np.ndarray | None = None  # (2,) standard deviations of the estimate (bundle only)
     determined: bool = True  # sigma within offset_max_sigma of the camera's distance to the wall
     used: str = "batch"  # "batch": the poses of the batch were kept; "given": the measured initial_offset_m;
-    # "long batch": eqs. 45-49 over offset_long_keyframes, the batches having left the offset undetermined;
+    # "long batch": eqs. 45-49 over offset_long_keyframes, the batches having left the offset undetermined and
+    # eqs. 45-49 agreeing with the better of them within offset_report_max_z of its sigma;
     # "long bundle": the bundle batch again over offset_long_keyframes (every offset_long_step-th), which
-    # determined it better
+    # knew it better than the first batch (undetermined too where it ruled out eqs. 45-49)
     mount: np.ndarray | None = None  # (4,) angle, roll (rad), C_X, C_Y (m), the batch's mean (sparse_batch.mount_of)
     mount_covariance: np.ndarray | None = None  # (4, 4) of `mount` (bundle only)
     keyframes: tuple[int, ...] = ()  # image indices of the keyframes the estimate came from
@@ -55,6 +95,7 @@ class BatchSummary:
     # How well the straight-pipe model fits the images: the bundle batch's RMS, kept when the long batch's estimate
     # replaces its offset (eqs. 45-49 hold every keyframe at one rotation, so their RMS also holds the wobble)
     fit_rms_px: float = np.nan
+    estimates: tuple[OffsetEstimate, ...] = ()  # every estimate the batches made, in order, the kept one marked
 
 
 class SparseOdometry:
@@ -68,6 +109,7 @@ class SparseOdometry:
         self.offset: BatchSummary | None = None  # None until the batch has run
         self.refined_at = 0  # last keyframe a at which the sliding refinement ran
         self.unconstrained = 0  # keyframes without a single point seen before (pose kept)
+        self.long_ran = False  # the long batch has run (once: not again over the whole run at its end)
 
     def start(self, view: View) -> None:
         R, C = initial_pose(*self.sparse.initial_offset_m)
@@ -171,10 +213,20 @@ class SparseOdometry:
         fraction = np.hypot(*res.offset_sigma) / wall_distance(res.R[0], res.C[0], self.radius)
         return res, float(fraction) if np.isfinite(fraction) else np.inf
 
-    def _summary(self, res: BatchResult, fraction: float, used: str, kfs: list[KeyframeState]) -> BatchSummary:
+    def _summary(self, res: BatchResult, fraction: float, used: str, kfs: list[KeyframeState],
+                 earlier: tuple[OffsetEstimate, ...] = ()) -> BatchSummary:
+        source = "batch" if used == "given" else used
+        mine = OffsetEstimate(source, np.array(res.offset, float), np.array(res.offset_sigma, float), fraction,
+                              kept=used != "given")
         return BatchSummary("bundle", res.offset, res.rms_px, res.observations, res.offset_sigma,
                             fraction <= self.sparse.offset_max_sigma, used, res.mount, res.mount_covariance,
-                            tuple(int(k.index) for k in kfs), fraction, res.rms_px)
+                            tuple(int(k.index) for k in kfs), fraction, res.rms_px,
+                            tuple(replace(e, kept=False) for e in earlier) + (mine,))
+
+    @staticmethod
+    def _noted(summary: BatchSummary, estimate: OffsetEstimate) -> BatchSummary:
+        """`summary` with an estimate that was not kept added to its list."""
+        return replace(summary, estimates=summary.estimates + (replace(estimate, kept=False),))
 
     def _bundle_options(self) -> dict:
         """The bundle batch's and the sliding bundle's settings."""
@@ -214,31 +266,59 @@ class SparseOdometry:
         return res, fraction
 
     def _wants_long_batch(self) -> bool:
-        """The bundle batch ran and its poses were kept: look again over more keyframes."""
+        """The bundle batch ran and its poses were kept, and the long batch has not run: look again over more
+        keyframes."""
         off = self.offset
-        return (off is not None and off.model == "bundle" and off.used == "batch"
+        return (off is not None and off.model == "bundle" and off.used == "batch" and not self.long_ran
                 and self.sparse.offset_long_keyframes > self.sparse.offset_batch_keyframes)
 
     def _long_batch(self, kfs: list[KeyframeState]) -> None:
         """The batch again over `offset_long_keyframes` keyframes: the bundle batch on every offset_long_step-th
         of them (the span of the wall seen, not the number of keyframes, is what fixes the offset), kept where
-        it determines the offset better than the first batch; where neither determines it, eqs. 45-49 over
-        all of them."""
-        if self._long_bundle(kfs) or self.offset.determined:
-            return
-        self._long_report(kfs)
-
-    def _long_bundle(self, kfs: list[KeyframeState]) -> bool:
+        its offset is better determined than the first batch's and within offset_max_sigma; where neither
+        bundle estimate is within it, eqs. 45-49 over all of them (from the keyframes' poses as the bundle
+        batches' starts left them), kept only where they agree with the better bundle estimate
+        (`report_agrees`), else that estimate is. A 6-inch run whose long bundle knew the offset to 0.48 % of
+        the wall distance (its C_Y 0.1 mm off) fell back on eqs. 45-49, which the robot's wobble had put 6 mm
+        off: the map 6 % short."""
+        self.long_ran = True
+        start = [(k.R.copy(), k.C.copy()) for k in kfs]
         pick = self._every(0, len(kfs) - 1, self.sparse.offset_long_step)
+        res, fraction = self._long_bundle(kfs, pick)
+        if res is not None:
+            self.offset = self._noted(self.offset, OffsetEstimate("long bundle", np.array(res.offset, float),
+                                                                  np.array(res.offset_sigma, float), fraction))
+        better = res is not None and fraction < self.offset.sigma_fraction
+        if better and fraction <= self.sparse.offset_max_sigma:
+            return self._keep_long_bundle(kfs, pick, res, fraction)
+        best = self._summary(res, fraction, "long bundle", [kfs[i] for i in pick]) if better else self.offset
+        report = None if self.offset.determined else self._long_report(kfs)
+        if report is not None:
+            agrees, z = report_agrees(report.offset, best, self.sparse.offset_report_max_z)
+            mine = OffsetEstimate("long batch", np.array(report.offset, float), z=None if np.isnan(z) else z)
+            if agrees:
+                return self._keep_long_report(kfs, report, mine)
+            self.offset = self._noted(self.offset, mine)
+        if better:
+            return self._keep_long_bundle(kfs, pick, res, fraction)
+        moved = [i for i, (k, (r, c)) in enumerate(zip(kfs, start))
+                 if not (np.array_equal(k.R, r) and np.array_equal(k.C, c))]  # a turned start's replay: undone
+        self._replace_poses([kfs[i] for i in moved], [start[i][0] for i in moved], [start[i][1] for i in moved])
+
+    def _long_bundle(self, kfs: list[KeyframeState], pick: list[int]) -> tuple[BatchResult | None, float]:
+        """The bundle batch on kfs[pick] (from both starts where the first batch left the offset undetermined);
+        the keyframes' poses are left as the starts left them."""
+        if self.offset.determined:  # the start is settled
+            return self._run_bundle([kfs[i] for i in pick])
+        return self._from_best_start(kfs, lambda ks: self._run_bundle([ks[i] for i in pick]))
+
+    def _keep_long_bundle(self, kfs: list[KeyframeState], pick: list[int], res: BatchResult,
+                          fraction: float) -> None:
         sub = [kfs[i] for i in pick]
-        res, fraction = (self._run_bundle(sub) if self.offset.determined else  # the start is settled
-                         self._from_best_start(kfs, lambda ks: self._run_bundle([ks[i] for i in pick])))
-        if res is None or fraction > self.sparse.offset_max_sigma or fraction >= self.offset.sigma_fraction:
-            return False
-        self.offset = self._summary(res, fraction, "long bundle", sub)
+        made = tuple(replace(e, kept=e.source == "long bundle") for e in self.offset.estimates)
+        self.offset = replace(self._summary(res, fraction, "long bundle", sub), estimates=made)
         self._replace_poses(sub, res.R, res.C)
         self._follow(kfs, pick)
-        return True
 
     def _follow(self, kfs: list[KeyframeState], pick: list[int]) -> None:
         """Keyframes between those a bundle adjustment solved (`pick`, indices into kfs): the pose of the solved
@@ -265,21 +345,27 @@ class SparseOdometry:
             pick.append(last)
         return pick
 
-    def _long_report(self, kfs: list[KeyframeState]) -> None:
+    def _long_report(self, kfs: list[KeyframeState]) -> OffsetResult | None:
         """Eqs. 45-49 over `offset_long_keyframes` keyframes: one offset and rotation for all of them (the
         crawler's mount), so the faint curvature of the wall adds up over the whole stretch while the
-        robot's wobble, which biases a short batch held at one rotation, averages out."""
+        robot's wobble, which biases a short batch held at one rotation, averages out. None where the
+        keyframes share too few points; the poses are left as they are (`_keep_long_report`)."""
         sp = self.sparse
         batch = OffsetBatch.from_keyframes([k.gid for k in kfs], [k.uv for k in kfs], [k.bearings for k in kfs],
                                            max_lag=sp.offset_long_lag)
-        R, C0 = kfs[0].R, kfs[0].C
+        C0 = kfs[0].C
         heights = np.array([k.C[2] - C0[2] for k in kfs])
         if len(batch) < 2 * (len(kfs) + 1):
-            return
-        res = optimise_offset(batch, self.camera, self.radius, R, C0[:2], heights)
+            return None
+        return optimise_offset(batch, self.camera, self.radius, kfs[0].R, C0[:2], heights)
+
+    def _keep_long_report(self, kfs: list[KeyframeState], res: OffsetResult, estimate: OffsetEstimate) -> None:
+        R = kfs[0].R
         self.offset = replace(self.offset, offset=res.offset, rms_px=res.rms_px, observations=res.pairs,
                               used="long batch", mount=mount_of(R, np.r_[res.offset, 0.0]), mount_covariance=None,
-                              keyframes=tuple(int(k.index) for k in kfs))
+                              keyframes=tuple(int(k.index) for k in kfs),
+                              estimates=tuple(replace(e, kept=False) for e in self.offset.estimates)
+                              + (replace(estimate, kept=True),))
         self._replace_poses(kfs, [R for _ in kfs], [np.r_[res.offset, h] for h in res.heights])
 
     def _replace_poses(self, kfs: list[KeyframeState], R, C) -> None:

@@ -196,7 +196,8 @@ def _run_record(dataset: Dataset, settings: Settings, tracked: _FramePass, idx: 
     h = C[:, 2]
     problems = []
     if off is not None and not off.determined:
-        problems.append(f"the images did not determine the camera's offset from the axis (kept: {off.used})")
+        problems.append(f"the images did not determine the camera's offset from the axis (kept: {off.used}"
+                        + _sigma_text(off, sp.offset_max_sigma) + ")")
     return run_record(
         SPARSE_METHOD, dataset, settings, frames=n, keyframes=len(idx), trajectory="keyframes",
         mount=None if mount is None else mount.to_dict(), footage=tracked.log.to_dict(), problems=problems,
@@ -212,13 +213,38 @@ def _run_record(dataset: Dataset, settings: Settings, tracked: _FramePass, idx: 
                          "source": "start" if off is None else off.used,
                          "batch_rms_px": None if off is None else off.rms_px,
                          "fit_rms_px": None if off is None else off.fit_rms_px,
-                         "batch_observations": None if off is None else off.observations},
+                         "batch_observations": None if off is None else off.observations,
+                         **_offset_choice(off, sp.offset_max_sigma)},
         pipe_axis={"origin": axis_origin.tolist(), "direction": axis_dir.tolist(),
                    "frame": "first keyframe's camera frame"},
         distance_along_pipe_m=float(h.max() - h.min()),
         keyframes_without_constraints=odometry.unconstrained,
         refinement_dof=odometry.refine_dof(),
     )
+
+
+def _kept_fraction(off) -> float | None:
+    """The kept offset's standard deviation as a fraction of the wall distance (none for eqs. 45-49, which hold
+    every keyframe at one rotation, nor for a measured offset)."""
+    if off.model != "bundle" or off.used in ("long batch", "given") or not np.isfinite(off.sigma_fraction):
+        return None
+    return float(off.sigma_fraction)
+
+
+def _sigma_text(off, limit: float) -> str:
+    fraction = _kept_fraction(off)
+    return "" if fraction is None else f", sigma {100 * fraction:.2f} % of the wall distance, limit {100 * limit:.2f} %"
+
+
+def _offset_choice(off, limit: float) -> dict:
+    """run.json: how the kept offset was chosen among the batches' estimates."""
+    if off is None:
+        return {"sigma_fraction": None, "max_sigma_fraction": limit, "estimates": []}
+    return {"sigma_fraction": _kept_fraction(off), "max_sigma_fraction": limit,
+            "estimates": [e.to_dict() for e in off.estimates],
+            "choice": "the bundle estimate with the smallest sigma (first batch or long bundle); eqs. 45-49 (long "
+                      "batch) only where that is beyond max_sigma_fraction and they lie within "
+                      "sparse.offset_report_max_z of its sigmas (z)"}
 
 
 def _fmt(v) -> str:
