@@ -51,8 +51,9 @@ def test_tee_centre_and_sections(tee_run):
 
 def test_missed_junction_completes_and_reports(tee_run, tmp_path):
     data, _ = tee_run
-    # A threshold no frame reaches: no junction cluster at all, one straight section through the tee.
-    settings = load_settings(None, ["classification.ratio_threshold=1000"])
+    # A threshold no frame reaches and no bend detection from the keyframes' rotations: no junction section at
+    # all, one straight section through the tee.
+    settings = load_settings(None, ["classification.ratio_threshold=1000", "classification.turn_deg=null"])
     res = run_pipeline(data, tmp_path / "out", settings)
     run = json.loads((tmp_path / "out" / "run.json").read_text())
     assert [s["kind"] for s in run["sections"]] == ["straight"]
