@@ -53,3 +53,11 @@ def test_a_classified_junction_is_left_to_the_classification():
     turning = turning_keyframes(_keyframes(yaw, np.random.default_rng(3)), 20, 4.0, classified)
     assert not turning.any()
     assert turning_keyframes(_keyframes(yaw, np.random.default_rng(3)), 20, 4.0)[80:120].all()
+
+
+def test_a_short_run_next_to_a_classified_junction():
+    yaw = np.zeros(30)
+    yaw[10:15] = 3.0
+    classified = np.zeros(30, bool)
+    classified[12] = True
+    assert not turning_keyframes(_keyframes(yaw, np.random.default_rng(4)), 20, 4.0, classified).any()

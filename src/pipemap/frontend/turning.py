@@ -11,7 +11,9 @@ about the same length of pipe whatever the camera. A window turns when the optic
 and last keyframes differ by more than the threshold (roll about the axis, which does not bend the
 path, does not count); every keyframe of a turning window is in the bend's junction section, so the
 straight sections either side keep clear of the bend's wall. Only bends the images missed are looked
-for: windows that reach a classified junction are left to the classification.
+for: windows that reach within a window of a classified junction are left to the classification (a
+tee's turn runs on a little past the frames classified, and taking that tail from the straight sections
+either side shortened them on a small loop enough to cost the appearance map its 2 mm).
 """
 
 from __future__ import annotations
@@ -39,9 +41,9 @@ def viewing_directions(keyframes: list[Keyframe]) -> tuple[np.ndarray, np.ndarra
 def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: float,
                       classified: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: keyframes of any window of `window` keyframes over which the view turns by more than
-    `threshold_deg`, among the windows that hold no keyframe the images already classified as a junction
-    (`classified`, (N,) bool): a tee or tight elbow turns the view as it should, and widening its section
-    by the window would swallow the straight pipe between junctions close together."""
+    `threshold_deg`, among the windows that come no nearer than a window to a keyframe the images already
+    classified as a junction (`classified`, (N,) bool): a tee or tight elbow turns the view as it should,
+    and widening its section by its turn's tail would swallow the straight pipe between junctions."""
     n = len(keyframes)
     out = np.zeros(n, bool)
     if n == 0 or window < 2:
@@ -53,8 +55,10 @@ def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: flo
     same = (chain[a] == chain[b]) & (b - a == 2 * half)
     angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", z[a], z[b]), -1.0, 1.0)))
     turning = same & (angle > threshold_deg)
-    if classified is not None:
-        seen = np.concatenate([[0], np.cumsum(np.asarray(classified, bool))])
+    if classified is not None:  # and the turn's own tail a window either side of a classified junction
+        c = np.concatenate([[0], np.cumsum(np.asarray(classified, bool))])
+        near = c[np.clip(k + window + 1, 0, n)] - c[np.clip(k - window, 0, n)] > 0
+        seen = np.concatenate([[0], np.cumsum(near)])
         turning &= seen[b + 1] - seen[a] == 0
     for i in np.flatnonzero(turning):
         out[max(0, i - half):i + half + 1] = True
