@@ -228,17 +228,7 @@ class RayCaster:
                     idx = np.flatnonzero(ok)
                     if idx.size == 0:
                         continue
-                    ti = t[idx]
-                    for k in others:
-                        Bi = rows[:, idx]
-                        idx_in = geo.inside(k, ti, _dot(Bi, geo.u_c[k], dt), _dot(Bi, geo.a_c[k], dt))
-                        if idx_in.any():
-                            keep = ~idx_in
-                            idx, ti = idx[keep], ti[keep]
-                    for k in bend_others:
-                        idx_in = geo.bends.inside(k, ti, rows[:, idx])
-                        if idx_in.any():
-                            idx, ti = idx[~idx_in], ti[~idx_in]
+                    idx, ti = _outside(geo, rows, idx, t[idx], others, bend_others, dt)
                     hi_ = h[idx]
                     best_sub[idx] = ti
                     out = idx if sub is None else sub[idx]
@@ -268,17 +258,26 @@ class RayCaster:
                 idx = np.flatnonzero(ok)
                 if idx.size == 0:
                     continue
-                ti = t[idx]
-                for k in others:
-                    Bi = rows[:, idx]
-                    idx_in = geo.inside(k, ti, _dot(Bi, geo.u_c[k], dt), _dot(Bi, geo.a_c[k], dt))
-                    idx, ti = idx[~idx_in], ti[~idx_in]
-                for k in bend_others:
-                    idx_in = bg.inside(k, ti, rows[:, idx])
-                    idx, ti = idx[~idx_in], ti[~idx_in]
+                idx, ti = _outside(geo, rows, idx, t[idx], others, bend_others, dt)
                 best_sub[idx] = ti
                 out = sub[idx]
                 best[out], pipe[out], cap[out], hbest[out] = ti, gk, False, h_all[idx, i].astype(dt)
+
+
+def _outside(geo: "_Geometry", rows: np.ndarray, idx: np.ndarray, ti: np.ndarray, others: list[int],
+             bend_others: list[int], dt) -> tuple[np.ndarray, np.ndarray]:
+    """The candidate hits (rays `idx` of `rows` at distances `ti`) that lie inside none of the neighbouring
+    straight pieces `others` and bends `bend_others`: a point inside another solid is not on the boundary."""
+    for k in others:
+        Bi = rows[:, idx]
+        idx_in = geo.inside(k, ti, _dot(Bi, geo.u_c[k], dt), _dot(Bi, geo.a_c[k], dt))
+        if idx_in.any():
+            idx, ti = idx[~idx_in], ti[~idx_in]
+    for k in bend_others:
+        idx_in = geo.bends.inside(k, ti, rows[:, idx])
+        if idx_in.any():
+            idx, ti = idx[~idx_in], ti[~idx_in]
+    return idx, ti
 
 
 def _dot(B: np.ndarray, v: np.ndarray, dtype) -> np.ndarray:
