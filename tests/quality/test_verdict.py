@@ -117,9 +117,11 @@ def test_straight_verdict_rates_the_mount_that_sets_the_scale():
 
     times = np.arange(50) / 30.0
     along = 0.05 * times
-    firm = NS(determined=True, source="long bundle", sigma=np.array([0.01, 0.01, 1e-4, 1e-4]), offset_m=np.zeros(2))
-    loose = NS(determined=False, source="long batch", sigma=None, offset_m=np.array([0.0, -0.065]))
-    wide = NS(determined=True, source="batch", sigma=np.array([0.01, 0.01, 1e-4, 2e-3]), offset_m=np.zeros(2))
+    firm = NS(determined=True, source="long bundle", sigma=np.array([0.01, 0.01, 1e-4, 1e-4]), offset_m=np.zeros(2),
+              angle_deg=90.0)
+    loose = NS(determined=False, source="long batch", sigma=None, offset_m=np.array([0.0, -0.065]), angle_deg=90.0)
+    wide = NS(determined=True, source="batch", sigma=np.array([0.01, 0.01, 0.0, 2e-3]), offset_m=np.zeros(2),
+              angle_deg=90.0)
     q = QualitySettings()
     assert straight_verdict("sparse-cylinder", np.arange(50), times, along, firm, 0.2, q).rating == GOOD
     v = straight_verdict("sparse-cylinder", np.arange(50), times, along, loose, 0.2, q)
@@ -127,3 +129,22 @@ def test_straight_verdict_rates_the_mount_that_sets_the_scale():
     # 2 mm of offset sigma at 200 mm from the wall: 1 % of scale, one sigma
     v = straight_verdict("dense-hybrid", np.arange(50), times, along, wide, 0.2, q)
     assert v.rating == SUSPECT and v.sections[0].figures["mount_offset_sigma_m"] == pytest.approx(2e-3)
+    # the same sigma with the camera 100 mm behind the axis: 300 mm from the wall it looks at, 0.67 % of scale
+    behind = NS(determined=True, source="batch", sigma=wide.sigma, offset_m=np.array([0.0, -0.1]), angle_deg=90.0)
+    v = straight_verdict("dense-hybrid", np.arange(50), times, along, behind, 0.2, q)
+    assert v.sections[0].checks[-1].value == pytest.approx(2e-3 / 0.3)
+    # ... and 100 mm beyond it, 100 mm from the wall: 2 % of scale, failed
+    beyond = NS(determined=True, source="batch", sigma=wide.sigma, offset_m=np.array([0.0, 0.1]), angle_deg=90.0)
+    assert straight_verdict("dense-hybrid", np.arange(50), times, along, beyond, 0.2, q).rating == FAILED
+
+
+def test_wall_distance_along_the_view_matches_the_ray_cast():
+    from pipemap.quality.straight_checks import wall_distance_along_view
+
+    # a camera at (C_X, C_Y) looking towards +Y, tilted 60 deg to the axis: the ray (0, sin a, cos a)
+    c = np.array([0.03, -0.05])
+    a = np.radians(60.0)
+    t = np.linspace(0, 1, 200001)
+    y = c[1] + t * np.sin(a)
+    hit = t[np.argmax(np.hypot(c[0], y) >= 0.2)]
+    assert wall_distance_along_view(c, 60.0, 0.2) == pytest.approx(hit, abs=1e-5)

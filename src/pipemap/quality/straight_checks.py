@@ -34,6 +34,15 @@ def motion_slips(along: np.ndarray, times: np.ndarray) -> float | None:
     return float(np.mean(off > np.maximum(_SLIP * np.abs(smooth) * dt, _SLIP_FLOOR)))
 
 
+def wall_distance_along_view(offset_m, angle_deg: float, radius: float) -> float:
+    """Distance from a camera at `offset_m` (C_X, C_Y) from the axis, looking towards +Y at `angle_deg` to the
+    axis, to the wall along its optical axis: the distance its image motion is scaled by, as the sparse
+    odometry measures its offset's sigma against (behind the axis, C_Y < 0, the wall is further away)."""
+    c_x, c_y = (float(v) for v in offset_m)
+    across = np.sqrt(max(radius * radius - c_x * c_x, 0.0)) - c_y
+    return float(across / max(np.sin(np.radians(angle_deg)), 1e-9))
+
+
 def _mount_checks(v: SectionVerdict, mount, radius: float, q: QualitySettings) -> None:
     if mount is None:
         return
@@ -42,8 +51,8 @@ def _mount_checks(v: SectionVerdict, mount, radius: float, q: QualitySettings) -
                               "which the scale rests"))
     if mount.sigma is None:
         return
-    wall = radius - abs(float(mount.offset_m[1]))
-    sd = float(np.nanmax(np.abs(mount.sigma[2:]))) if np.isfinite(mount.sigma[2:]).any() else None
+    wall = wall_distance_along_view(mount.offset_m, mount.angle_deg, radius)
+    sd = float(np.hypot(*np.nan_to_num(mount.sigma[2:]))) if np.isfinite(mount.sigma[2:]).any() else None
     v.figures["mount_offset_sigma_m"] = sd
     v.checks.append(above("mount", None if sd is None else sd / max(wall, 1e-9), q.mount_sigma,
                           "mount offset's standard deviation, fraction of the wall distance,",
