@@ -27,6 +27,7 @@ class PageLoad:
     attributes: dict  # the data-* attributes of <html> after loading
     console: list[str]  # every console message the page printed
     seconds: float  # the browser's wall time, start to exit
+    html: str = ""  # the DOM as dumped (empty for a screenshot)
 
     @property
     def ready(self) -> bool:
@@ -65,7 +66,7 @@ def load_page(page: Path, fragment: str = "", budget_ms: int = 20000, window: st
     console = _CONSOLE.findall(done.stderr)
     head = re.search(r"<html([^>]*)>", done.stdout)
     attributes = dict(re.findall(r'(data-[\w-]+)="([^"]*)"', head.group(1))) if head else {}
-    return PageLoad(attributes, console, seconds)
+    return PageLoad(attributes, console, seconds, "" if screenshot else done.stdout)
 
 
 __all__ = ["PageLoad", "chromium", "load_page"]

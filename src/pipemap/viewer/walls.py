@@ -101,7 +101,8 @@ class UnrolledWall:
     def page_data(self, index: int) -> dict:
         """What the page needs to draw the wall: its image element and the two axes' coordinates."""
         chainage = self.chainage0_m is not None
-        return {"name": self.name, "image": f"wall-image-{index}", "cols": self.width, "rows": self.height, "along0": float(self.along_of_column(0)),
+        return {"name": self.name, "image": f"wall-image-{index}", "cols": self.width, "rows": self.height,
+                "along0": float(self.along_of_column(0)),
                 "alongPx": self.along_per_px, "alongKind": "chainage" if chainage else "h",
                 "phi0Deg": math.degrees(self.phi0_rad), "phiPerRowDeg": math.degrees(self.phi_per_row_rad)}
 
