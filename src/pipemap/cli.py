@@ -520,7 +520,8 @@ def demo(
     out: Path = typer.Option(Path("pipemap-demo"), "--out", help="Folder for dataset/ and result/ (must be empty)."),
     force: bool = typer.Option(False, "--force", help="Replace the dataset/ and result/ of an earlier demo."),
 ) -> None:
-    """Simulate the demo-loop network, map it, evaluate against ground truth and write report.html."""
+    """Simulate the demo-loop network, map it, evaluate against ground truth and write report.html and
+    viewer.html."""
     from pipemap.demo import run_demo
 
     with frame_progress("demo: rendering, then mapping") as bar:
@@ -546,6 +547,7 @@ def demo(
     for note in summary.notes:
         console.print(f"note: {note}", markup=False)
     console.print(f"report: {summary.report}", markup=False)
+    console.print(f"viewer: {summary.viewer}", markup=False)
 
 
 def run() -> None:  # pragma: no cover - console entry for `python -m pipemap`
