@@ -20,12 +20,12 @@ def test_demo_writes_everything(tmp_path):
     assert stages == {"rendering", "mapping"}
     result = tmp_path / "demo" / "result"
     for name in ("trajectory.tum", "junctions.yaml", "run.json", "metrics.json", "report.html", "appearance.ply",
-                 "report/trajectory.png"):
+                 "report/trajectory.png", "viewer.html"):
         assert (result / name).is_file(), name
     assert list((result / "unrolled").glob("*.png")) and list((result / "unrolled").glob("*.json"))
     assert (tmp_path / "demo" / "dataset" / "ground_truth" / "poses.tum").is_file()
     assert s.frames == 60 and 10 < s.keyframes <= 60
-    assert s.report == result / "report.html"
+    assert s.report == result / "report.html" and s.viewer == result / "viewer.html"
     # the first 1.2 m of the loop, through T1: the figures the summary prints are real and small
     assert abs(s.path_length_error_pct) < 10.0
     assert s.ate_rmse_m < 0.1

@@ -492,11 +492,36 @@ def evaluate(
 
 @app.command()
 @friendly
+def report(
+    result_dir: Path = typer.Argument(..., help="Result folder (of pipemap run or pipemap demo)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="The page to write (default RESULT/viewer.html)."),
+    observations: Optional[Path] = typer.Option(None, "--observations", help="A located observations CSV "
+                                                "(default RESULT/observations.csv when there is one)."),
+    config: Optional[Path] = CONFIG_OPTION,
+    set_: List[str] = SET_OPTION,
+    force: bool = typer.Option(False, "--force", help="Replace an existing page (once the new one is complete)."),
+) -> None:
+    """Write a self-contained HTML viewer of a result: the network in 3D with a sample of the appearance map,
+    every unrolled wall with a chainage x clock grid (click for chainage and clock position), the deformation
+    plot and the observations. It opens from the file with no server and no network."""
+    from pipemap.viewer import write_viewer
+
+    summary = write_viewer(result_dir, out, observations, _load_settings(config, set_), force=force)
+    extra = "" if summary.observations is None else f", {summary.observations} observations ({summary.placed} on walls)"
+    console.print(f"viewer: {summary.path} ({summary.bytes / 1e6:.1f} MB, {summary.walls} walls, "
+                  f"{summary.cloud_points} map points{extra})", markup=False, highlight=False, soft_wrap=True)
+    for note in summary.missing:
+        console.print(f"note: {note}", markup=False, highlight=False, soft_wrap=True)
+
+
+@app.command()
+@friendly
 def demo(
     out: Path = typer.Option(Path("pipemap-demo"), "--out", help="Folder for dataset/ and result/ (must be empty)."),
     force: bool = typer.Option(False, "--force", help="Replace the dataset/ and result/ of an earlier demo."),
 ) -> None:
-    """Simulate the demo-loop network, map it, evaluate against ground truth and write report.html."""
+    """Simulate the demo-loop network, map it, evaluate against ground truth and write report.html and
+    viewer.html."""
     from pipemap.demo import run_demo
 
     with frame_progress("demo: rendering, then mapping") as bar:
@@ -522,6 +547,7 @@ def demo(
     for note in summary.notes:
         console.print(f"note: {note}", markup=False)
     console.print(f"report: {summary.report}", markup=False)
+    console.print(f"viewer: {summary.viewer}", markup=False)
 
 
 def run() -> None:  # pragma: no cover - console entry for `python -m pipemap`

@@ -427,6 +427,13 @@ class QualitySettings(_Section):
                                              "reach 1 % of distance), failed above the second")
 
 
+class ViewerSettings(_Section):
+    """The self-contained viewer page (`pipemap report`)."""
+
+    cloud_points: int = Field(200_000, ge=0, description="appearance points drawn in the 3D view: a seeded random "
+                              "sample of appearance.ply (a paper-loop map holds about 10 million; 0: none)")
+
+
 class Settings(_Section):
     seed: int = Field(0, description="seed of every random choice (RANSAC, sampling)")
     frontend: FrontendSettings = FrontendSettings()
@@ -440,6 +447,7 @@ class Settings(_Section):
     sparse: SparseSettings = SparseSettings()
     gain_mask: GainMaskSettings = GainMaskSettings()
     quality: QualitySettings = QualitySettings()
+    viewer: ViewerSettings = ViewerSettings()
 
     def to_dict(self) -> dict[str, Any]:
         return self.model_dump(mode="json")

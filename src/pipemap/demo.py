@@ -1,7 +1,7 @@
-"""`pipemap demo`: simulate the demo-loop network, map it, evaluate the map and write the report.
+"""`pipemap demo`: simulate the demo-loop network, map it, evaluate the map and write the report and the viewer.
 
 out_dir/dataset is the rendered dataset (with ground truth), out_dir/result the pipeline's result
-folder with metrics.json and report.html.
+folder with metrics.json, report.html and viewer.html.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ class DemoSummary:
     dataset_dir: Path
     result_dir: Path
     report: Path
+    viewer: Path  # the self-contained viewer page (pipemap report)
     frames: int  # read from the recording (repeated ones included)
     keyframes: int
     seconds: dict  # simulate, run, maps, evaluate, report, total
@@ -70,6 +71,7 @@ def run_demo(out_dir: str | Path, width: int = 640, height: int = 480,
     from pipemap.evaluation.report import write_report
     from pipemap.pipeline import run_pipeline
     from pipemap.sim.simulate import simulate
+    from pipemap.viewer import write_viewer
 
     out_dir = Path(out_dir)
     _prepare(out_dir, force)
@@ -93,6 +95,7 @@ def run_demo(out_dir: str | Path, width: int = 640, height: int = 480,
     seconds["evaluate"] = time.perf_counter() - t
     t = time.perf_counter()
     html = write_report(result_dir, dataset_dir)
+    viewer = write_viewer(result_dir, settings=settings).path
     seconds["report"] = time.perf_counter() - t
     seconds["total"] = time.perf_counter() - t0
     tees = []
@@ -103,7 +106,8 @@ def run_demo(out_dir: str | Path, width: int = 640, height: int = 480,
     if result.quality is not None:
         notes.insert(0, f"self-checks: {result.quality.line()}")
     wall = None if metrics.appearance_wall is None else metrics.appearance_wall.as_dict()
-    return DemoSummary(out_dir, Path(dataset_dir), result_dir, html, result.footage.frames, result.keyframe_count,
+    return DemoSummary(out_dir, Path(dataset_dir), result_dir, html, viewer, result.footage.frames,
+                       result.keyframe_count,
                        seconds, _finite(metrics.path_length_error_pct), _finite(metrics.ate_rigid.rmse), tees,
                        maps, notes, wall)
 
