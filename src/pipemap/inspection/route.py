@@ -209,10 +209,23 @@ class Route:
             raise PipemapError(f"expected format {FORMAT!r}, found {d.get('format')!r}", where, "format")
         try:
             segs = tuple(RouteSegment.from_dict(s) for s in d["segments"])
-            nodes = tuple((str(j["id"]), str(j.get("type", "")), float(j["chainage_m"])) for j in d.get("junctions", []))
+            nodes = tuple((str(j["id"]), str(j.get("type", "")), float(j["chainage_m"]))
+                          for j in d.get("junctions", []))
             return cls(segs, float(d["radius_m"]), dict(d.get("up_estimate") or {}), nodes)
         except (KeyError, TypeError, ValueError) as exc:
             raise PipemapError(f"malformed route: {exc}", where) from None
+
+
+def frame_chainage(frame_count: int, keyframe_frames, keyframe_chainage) -> np.ndarray:
+    """Chainage of every frame of the recording: the keyframes' own, linear in frame index between them, NaN
+    before the first and after the last keyframe."""
+    f = np.asarray(keyframe_frames, float)
+    out = np.full(frame_count, np.nan)
+    if len(f):
+        idx = np.arange(frame_count)
+        inside = (idx >= f[0]) & (idx <= f[-1])
+        out[inside] = np.interp(idx[inside], f, np.asarray(keyframe_chainage, float))
+    return out
 
 
 def write_route(path: Path, route: Route) -> None:
@@ -248,4 +261,4 @@ def _vec(v) -> np.ndarray:
     return a
 
 
-__all__ = ["Route", "RouteSegment", "FORMAT", "write_route", "read_route"]
+__all__ = ["Route", "RouteSegment", "FORMAT", "write_route", "read_route", "frame_chainage"]
