@@ -38,7 +38,7 @@ def test_tee_centre_and_sections(tee_run):
     doc = yaml.safe_load((res.out_dir / "junctions.yaml").read_text())
     assert doc["format"] == "pipemap-junctions/2" and len(doc["junctions"]) == 1
     j = doc["junctions"][0]
-    assert set(j) == {"id", "type", "centroid", "keyframe"} and j["type"] == "tee"
+    assert set(j) == {"id", "type", "centroid", "keyframe", "chainage_m"} and j["type"] == "tee"
     # The estimate lives in the first keyframe's frame: compare through the trajectory's rigid alignment.
     m = evaluate(res.out_dir, data, write=False)
     assert m.ate_rigid.rmse < 0.01  # 1 cm over 1.5 m

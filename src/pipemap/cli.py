@@ -490,6 +490,94 @@ def evaluate(
     console.print(f"metrics written to {result_dir / 'metrics.json'}")
 
 
+def _pair(text: str, what: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise PipemapError(f"expected numbers separated by commas, got {text!r}", what) from None
+    if len(values) not in (2, 3):
+        raise PipemapError(f"expected 2 or 3 numbers, got {text!r}", what)
+    return values
+
+
+@app.command()
+@friendly
+def locate(
+    result_dir: Path = typer.Argument(..., help="Result folder of pipemap run."),
+    frame: int = typer.Option(..., "--frame", help="Frame index (as in frames.csv)."),
+    pixel: List[str] = typer.Option(..., "--pixel", help="Pixel U,V (repeatable)."),
+    config: Optional[Path] = typer.Option(None, "--config", help="YAML settings file (locate.* sigmas)."),
+    set_: List[str] = typer.Option([], "--set", help="Override one setting: section.key=value (repeatable)."),
+) -> None:
+    """The wall point seen at a pixel: chainage, clock position (deg, 0 = 12 o'clock, clockwise looking along
+    the survey) and 3D point, with one-sigma uncertainties. For many pixels use `pipemap observations`."""
+    from pipemap.inspection.locate import locate_pixels, open_result
+
+    s = _load_settings(config, set_)
+    px = [_pair(p, "--pixel")[:2] for p in pixel]
+    loc = locate_pixels(open_result(result_dir), frame, px, s.locate)
+    console.print(f"frame {frame}: pose from the {loc.pose}", highlight=False)
+    for (u, v), ok, c, k, p, sc, sk in zip(px, loc.ok, loc.chainage, loc.clock_deg, loc.points, loc.sigma_chainage,
+                                           loc.sigma_clock_deg):
+        if not ok:
+            console.print(f"{u:g},{v:g}: the ray meets no mapped wall", highlight=False)
+            continue
+        hours = round(k / 30, 1) % 12 or 12.0
+        console.print(f"{u:g},{v:g}: chainage {c:.3f} m +/- {sc:.3f}, clock {k:.1f} deg +/- {sk:.1f} "
+                      f"({hours:.1f} o'clock), point {p[0]:.4f} {p[1]:.4f} {p[2]:.4f}", highlight=False)
+
+
+@app.command()
+@friendly
+def observations(
+    result_dir: Path = typer.Argument(..., help="Result folder of pipemap run."),
+    obs_csv: Path = typer.Argument(..., help="CSV of observations: frame,u,v[,u2,v2][,id,code,remark,continuous]."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Output CSV (default RESULT/observations.csv)."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing output file."),
+) -> None:
+    """Locate an inspector's observations: write them back with section, nodes, chainage and clock from/to."""
+    from pipemap.inspection.locate import open_result
+    from pipemap.inspection.observations import locate_observation, read_observations, write_observations
+
+    target = out or result_dir / "observations.csv"
+    rows = read_observations(obs_csv)
+    res = open_result(result_dir)
+    located = [locate_observation(res, r) for r in rows]
+    write_observations(target, located, force)
+    console.print(f"{len(located)} observations located, written to {target}", highlight=False)
+
+
+@app.command()
+@friendly
+def export(
+    result_dir: Path = typer.Argument(..., help="Result folder of pipemap run."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Folder for sections.csv and network.geojson "
+                                       "(default: the result folder)."),
+    start_manhole: Optional[str] = typer.Option(None, "--start-manhole", help="E,N[,Z] of the start manhole."),
+    end_manhole: Optional[str] = typer.Option(None, "--end-manhole", help="E,N[,Z] of the end manhole."),
+    force: bool = typer.Option(False, "--force", help="Replace existing files."),
+) -> None:
+    """Sections as CSV and the network as GeoJSON (local metric frame; georeferenced with both manholes)."""
+    from pipemap.inspection.export import dumps_geojson, network_geojson, sections_csv
+    from pipemap.inspection.result_route import load_route
+    from pipemap.mapping.pieces import read_run
+    from pipemap.output import atomic_write_text, check_new_file
+
+    if (start_manhole is None) != (end_manhole is None):
+        raise PipemapError("give both --start-manhole and --end-manhole, or neither")
+    folder = out or result_dir
+    route = load_route(result_dir, read_run(result_dir))
+    a = None if start_manhole is None else _pair(start_manhole, "--start-manhole")
+    b = None if end_manhole is None else _pair(end_manhole, "--end-manhole")
+    doc = network_geojson(route, a, b)
+    for name in ("sections.csv", "network.geojson"):
+        check_new_file(folder / name, force)
+    atomic_write_text(folder / "sections.csv", sections_csv(route))
+    atomic_write_text(folder / "network.geojson", dumps_geojson(doc))
+    console.print(f"sections.csv and network.geojson written to {folder} (scale {doc['properties']['scale']})",
+                  highlight=False)
+
+
 @app.command()
 @friendly
 def report(

@@ -392,6 +392,26 @@ class GainMaskSettings(_Section):
     sigma_px: float = Field(15.0, gt=0, description="Gaussian smoothing of the averaged white-card images")
 
 
+class RouteSettings(_Section):
+    """Inspector's coordinates: chainage along the route's axis and clock position around it (inspection/)."""
+
+    up: Literal["image", "camera-side"] | tuple[float, float, float] = Field(
+        "image", description="12 o'clock: `image` = the keyframes' mean image-up across the axis (a crawler keeps "
+        "its roll), `camera-side` = opposite the camera's mean offset from the axis (it rides the invert), or a "
+        "world vector [x, y, z] in the frame of trajectory.tum")
+
+
+class LocateSettings(_Section):
+    """Uncertainty of a located wall point (pipemap locate / observations): first-order propagation of these."""
+
+    pixel_sigma_px: float = Field(1.0, ge=0, description="the inspector's pixel")
+    position_sigma_m: float = Field(0.002, ge=0, description="camera centre across and along the axis, locally")
+    drift_fraction: float = Field(0.002, ge=0, description="scale drift of the VO: chainage sigma grows by this "
+                                  "fraction of the chainage (Table I errors of the network pipeline: under 0.2 %)")
+    rotation_sigma_deg: float = Field(0.2, ge=0, description="camera orientation, each axis")
+    radius_sigma_m: float = Field(0.001, ge=0, description="the pipe's radius about the a-priori value")
+
+
 class QualitySettings(_Section):
     """Self-checks from the data alone: what is too little to map, and when a section is suspect or failed."""
 
@@ -447,6 +467,8 @@ class Settings(_Section):
     sparse: SparseSettings = SparseSettings()
     gain_mask: GainMaskSettings = GainMaskSettings()
     quality: QualitySettings = QualitySettings()
+    route: RouteSettings = RouteSettings()
+    locate: LocateSettings = LocateSettings()
     viewer: ViewerSettings = ViewerSettings()
 
     def to_dict(self) -> dict[str, Any]:

@@ -50,6 +50,8 @@ from pipemap.frontend.tracks import Keyframe
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.frontend.usable import UsableMask, usable_mask
 from pipemap.geometry.bend import OFFSET_SIGMA_M
+from pipemap.inspection.network_route import network_route
+from pipemap.inspection.route import Route, frame_chainage, write_route
 from pipemap.mapping import WallPiece, write_maps
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.quality import FrameStats, RunVerdict, network_verdict, require_mappable
@@ -79,6 +81,7 @@ class NetworkResult:
     tees: list[MappedJunction] = field(default_factory=list)  # distinct tees in order of first passage
     quality: RunVerdict | None = None  # the sections' self-checks
     dropped: list[DroppedPass] = field(default_factory=list)  # junction passes with no turn and no side opening
+    route: Route | None = None  # the axis followed, with chainage and 12 o'clock (inspection/route.py)
 
     @property
     def sections(self) -> list[MappedSection]:
@@ -222,20 +225,32 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     junctions = pipe_map.junctions
     tees = name_junctions(junctions, dataset.radius_m, settings.loop_closure.same_junction_radii)
     poses = pipe_map.poses
-    # World = the first keyframe's camera frame (x right, y down): 12 o'clock is its -y.
+    # World = the first keyframe's camera frame (x right, y down): 12 o'clock is first taken as its -y, then
+    # estimated over the run (inspection/up.py) from the pieces' axes, which do not depend on it.
     up = -poses[0, :3, 1] if len(poses) else np.array([0.0, -1.0, 0.0])
     pipe_map.wall_pieces = wall_pieces(pipe_map.sections, junctions, up)
+    axis_route = network_route(pipe_map.wall_pieces, [m.to_dict() for m in pipe_map.sections],
+                          [dict(j.to_dict(), first_keyframe=j.first, last_keyframe=j.last) for j in junctions],
+                          poses, dataset.radius_m, settings.route.up)
+    if axis_route is not None:
+        pipe_map.wall_pieces = wall_pieces(pipe_map.sections, junctions, axis_route.segments[0].up)
     route = float(np.sum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))) if len(poses) else 0.0
     quality = network_verdict(result.sections, result.windows, vo.keyframes, poses, pipe_map.sections, junctions,
                               joins, revisit, dataset.radius_m, settings.quality, route)
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
     seconds["loop_closure"] = revisit.seconds
-    return NetworkResult(result, pipe_map, seconds, joins, revisit, tees, quality, dropped)
+    return NetworkResult(result, pipe_map, seconds, joins, revisit, tees, quality, dropped, axis_route)
 
 
-def write_junctions(path: Path, junctions: list[MappedJunction]) -> None:
-    doc = {"format": "pipemap-junctions/2", "junctions": [j.to_dict() for j in junctions]}
+def write_junctions(path: Path, junctions: list[MappedJunction], route: Route | None = None) -> None:
+    """junctions.yaml; with a route, each junction's chainage where the route first passes it."""
+    first = {}
+    for jid, _, chainage in (route.nodes if route is not None else ()):
+        first.setdefault(jid, chainage)
+    doc = {"format": "pipemap-junctions/2",
+           "junctions": [dict(j.to_dict(), **({"chainage_m": round(first[j.id], 4)} if j.id in first else {}))
+                         for j in junctions]}
     atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
 
 
@@ -247,12 +262,16 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
     traj = Trajectory.from_matrices(dataset.times()[result.indices], net.map.poses)
     write_tum(folder / "trajectory.tum", traj,
               header="pipemap fisheye VO: keyframe T_wc in metres, world = first keyframe's camera")
-    write_junctions(folder / "junctions.yaml", net.tees)
+    write_junctions(folder / "junctions.yaml", net.tees, net.route)
+    chainage = None
+    if net.route is not None:
+        write_route(folder / "route.json", net.route)
+        chainage = frame_chainage(len(dataset), result.indices, net.route.follow(net.map.poses[:, :3, 3]))
     write_sparse_ply(folder / "sparse.ply", net.map.points)
     classes = front.classes
     labels = dict(zip(np.asarray(classes.indices).tolist(), classes.labels))
     labels.update({i: "repeated" for i in front.footage.repeated})
-    write_frames_csv(folder / "frames.csv", len(dataset), result.indices.tolist(), labels)
+    write_frames_csv(folder / "frames.csv", len(dataset), result.indices.tolist(), labels, chainage)
     seconds = dict(seconds)
     seconds["write"] = time.perf_counter() - t0
     problems = [f"section {m.number}: {p}" for m in net.sections for p in m.problems]
@@ -277,6 +296,8 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
         dropped_junction_passes=[d.to_dict() for d in net.dropped],
         junction_clusters=[list(c) for c in front.classes.clusters],
         wall_pieces=net.wall_pieces,
+        route=None if net.route is None else {"length_m": round(net.route.length, 4),
+                                              "up_estimate": net.route.up_source},
         appearance=maps,
         tee_solves=[r.to_dict() for r in net.joins],
         loop_closure=None if net.revisit is None else net.revisit.to_dict(),
@@ -313,7 +334,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
             stage("appearance")
             maps = write_maps(tmp, dataset, net.straight.indices, net.map.poses,
                               [WallPiece.from_dict(d) for d in net.wall_pieces], settings,
-                              usable=None if front.mask is None else front.mask.usable)
+                              usable=None if front.mask is None else front.mask.usable, route=net.route)
         stage("writing")
         seconds = dict(front.seconds)
         seconds.update(net.seconds)

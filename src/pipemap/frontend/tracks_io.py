@@ -30,16 +30,22 @@ from pipemap.output import atomic_write_text
 TRACKS_HEADER = ["track_id", "keyframe", "index", "u", "v", "guided"]
 
 
-def write_frames_csv(path: Path, image_count: int, keyframe_indices, labels=None) -> None:
+def write_frames_csv(path: Path, image_count: int, keyframe_indices, labels=None, chainage=None) -> None:
     """One row per frame of the recording. `labels`: a list (one per frame) or a mapping index -> label;
-    frames it does not name were not read (damaged: `unreadable`); None: all `straight`."""
+    frames it does not name were not read (damaged: `unreadable`); None: all `straight`. `chainage`: metres
+    along the route per frame (NaN: none), written as a `chainage_m` column."""
     is_key = np.zeros(image_count, int)
     is_key[np.asarray(list(keyframe_indices), int)] = 1
     if labels is None:
         labels = ["straight"] * image_count
     elif isinstance(labels, dict):
         labels = [labels.get(i, "unreadable") for i in range(image_count)]
-    lines = ["index,keyframe,label"] + [f"{i},{is_key[i]},{labels[i]}" for i in range(image_count)]
+    if chainage is None:
+        lines = ["index,keyframe,label"] + [f"{i},{is_key[i]},{labels[i]}" for i in range(image_count)]
+    else:
+        c = [f"{v:.4f}" if np.isfinite(v) else "" for v in np.asarray(chainage, float)]
+        lines = ["index,keyframe,label,chainage_m"] + [f"{i},{is_key[i]},{labels[i]},{c[i]}"
+                                                       for i in range(image_count)]
     atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 

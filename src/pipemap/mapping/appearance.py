@@ -297,17 +297,38 @@ def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out.ravel()[:n].astype(np.float64)
 
 
-def write_appearance_ply(path: str | Path, points: np.ndarray, intensity: np.ndarray) -> None:
-    """appearance.ply: binary little-endian PLY, float32 x y z and uchar intensity, written atomically."""
+def _route_segment(route, piece: WallPiece) -> int:
+    """The route segment that follows `piece` (by name; else the one nearest its middle)."""
+    for i, seg in enumerate(route.segments):
+        if seg.name == piece.name:
+            return i
+    return int(route.to_route((piece.start + piece.end) / 2, wall=False)[3][0])
+
+
+def _start_chainage(route, piece: WallPiece) -> float:
+    """Chainage of the piece's axis start on its route segment."""
+    seg = route.segments[_route_segment(route, piece)]
+    return float(route.to_route(piece.start, wall=False, segment=[_route_segment(route, piece)])[0][0]) \
+        if seg.kind == "arc" else float(seg.chainage_start + (piece.start - seg.start) @ piece.axis)
+
+
+def write_appearance_ply(path: str | Path, points: np.ndarray, intensity: np.ndarray, coords=None) -> None:
+    """appearance.ply: binary little-endian PLY, float32 x y z and uchar intensity, written atomically;
+    `coords` (chainage, clock_deg) add float32 properties `chainage` and `clock_deg` per point."""
     P = np.asarray(points, float).reshape(-1, 3)
     I = np.asarray(intensity, float).reshape(-1)
     if len(P) != len(I):
         raise ValueError(f"{len(P)} points but {len(I)} intensities")
     ok = np.all(np.isfinite(P), axis=1) & np.isfinite(I)
     P, I = P[ok], I[ok]
-    vertex = np.empty(len(P), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")])
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")]
+    if coords is not None:
+        fields += [("chainage", "<f4"), ("clock_deg", "<f4")]
+    vertex = np.empty(len(P), dtype=fields)
     vertex["x"], vertex["y"], vertex["z"] = P[:, 0], P[:, 1], P[:, 2]
     vertex["intensity"] = np.clip(np.rint(I), 0, 255).astype(np.uint8)
+    if coords is not None:
+        vertex["chainage"], vertex["clock_deg"] = np.asarray(coords[0])[ok], np.asarray(coords[1])[ok]
     buf = io.BytesIO()
     PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<",
             comments=["pipemap appearance map: wall points (metres, world frame of trajectory.tum), "
@@ -330,17 +351,25 @@ def read_appearance_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_wc, pieces: Iterable[WallPiece],
                settings=None, progress: Callable[[int, int], None] | None = None,
-               usable: np.ndarray | None = None) -> dict:
+               usable: np.ndarray | None = None, route=None) -> dict:
     """appearance.ply and unrolled/ into `folder`; returns counts and seconds for run.json.
-    `settings`: the run's Settings or its AppearanceSettings."""
+    `settings`: the run's Settings or its AppearanceSettings; `route` (inspection.Route): the map's points get
+    their chainage and clock position, the unrolled images the chainage of their first column."""
     folder = Path(folder)
     s = getattr(settings, "appearance", settings) or AppearanceSettings()
     pieces = list(pieces)
     amap = build_appearance(dataset, keyframe_indices, poses_T_wc, pieces, s, progress, usable)
     t0 = time.perf_counter()
     points, intensity = amap.points()
-    write_appearance_ply(folder / "appearance.ply", points, intensity)
-    images = write_unrolled(folder / "unrolled", amap)
+    coords = None
+    if route is not None:
+        segment = np.concatenate([np.full(int(pm.seen.sum()), _route_segment(route, pm.piece), int)
+                                  for pm in amap.pieces]) if amap.pieces else np.zeros(0, int)
+        chainage, clock, _, _ = route.to_route(points, wall=True, segment=segment)
+        coords = (chainage, clock)
+    write_appearance_ply(folder / "appearance.ply", points, intensity, coords)
+    starts = None if route is None else {pm.piece.name: _start_chainage(route, pm.piece) for pm in amap.pieces}
+    images = write_unrolled(folder / "unrolled", amap, chainage_of_start=starts)
     return {
         "appearance_points": int(len(points)),
         "unrolled_images": [p.name for p in images],

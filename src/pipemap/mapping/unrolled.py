@@ -24,12 +24,13 @@ from pipemap.output import atomic_write_bytes, atomic_write_text
 if TYPE_CHECKING:
     from pipemap.mapping.appearance import AppearanceMap, PieceMap
 
-FORMAT = "pipemap-unrolled/1"
+FORMAT = "pipemap-unrolled/2"
 UNSEEN = 0
 
 
-def unrolled_image(pm: "PieceMap", px_m: float) -> tuple[np.ndarray, dict]:
-    """(rows, cols) uint8 image of one piece at about px_m metres per pixel, and its sidecar dict."""
+def unrolled_image(pm: "PieceMap", px_m: float, chainage_of_start: float = 0.0) -> tuple[np.ndarray, dict]:
+    """(rows, cols) uint8 image of one piece at about px_m metres per pixel, and its sidecar dict;
+    `chainage_of_start`: the route's chainage at the piece's axis start (column 0)."""
     piece = pm.piece
     values = pm.intensity.T  # (W around, H along)
     n_phi = values.shape[0]
@@ -53,16 +54,19 @@ def unrolled_image(pm: "PieceMap", px_m: float) -> tuple[np.ndarray, dict]:
     meta = unrolled_sidecar(piece.name, rows, cols, start=piece.start, end=piece.end, radius=piece.radius,
                             up=piece.up, px_m=px_m, along_m=along, phi_of_row_0=0.0,
                             phi_per_row=-2 * np.pi / rows, seen_fraction=float(ok.mean()),
-                            bend=piece.to_dict()["bend"] if piece.bend_h is not None else None)
+                            bend=piece.to_dict()["bend"] if piece.bend_h is not None else None,
+                            chainage_of_column_0=chainage_of_start)
     return img, meta
 
 
 def unrolled_sidecar(piece: str, rows: int, cols: int, *, start, end, radius: float, up, px_m: float, along_m: float,
-                     phi_of_row_0: float, phi_per_row: float, seen_fraction: float, bend: dict | None = None) -> dict:
-    """The sidecar every method writes beside an unrolled image (`pipemap-unrolled/1`, docs/formats.md):
+                     phi_of_row_0: float, phi_per_row: float, seen_fraction: float, bend: dict | None = None,
+                     chainage_of_column_0: float = 0.0) -> dict:
+    """The sidecar every method writes beside an unrolled image (`pipemap-unrolled/2`, docs/formats.md):
     columns run along the axis from `start` towards `end` (world frame of trajectory.tum), rows around the
     wall from `phi_of_row_0` in steps of `phi_per_row` (negative: anticlockwise looking from start to end,
-    the wall as seen from inside), phi = 0 at `up` (12 o'clock)."""
+    the wall as seen from inside), phi = 0 at `up` (12 o'clock); column 0 is at `chainage_of_column_0` on the
+    route (route.json)."""
     return {
         "format": FORMAT,
         "piece": piece,
@@ -77,6 +81,10 @@ def unrolled_sidecar(piece: str, rows: int, cols: int, *, start, end, radius: fl
         "h_of_column_0_m": 0.0,
         "columns": "column c is at h = h_of_column_0_m + c * metres_per_pixel_along, metres along the axis from "
                    "start towards end",
+        "chainage_of_column_0_m": round(float(chainage_of_column_0), 6),
+        "chainage": "column c is at chainage chainage_of_column_0_m + c * metres_per_pixel_along (route.json)",
+        "clock_of_row_0_deg": float(np.degrees(phi_of_row_0) % 360.0),
+        "clock_per_row_deg": float(np.degrees(phi_per_row)),
         "phi_of_row_0_rad": float(phi_of_row_0),
         "phi_per_row_rad": float(phi_per_row),
         "row_of_12_oclock": _row_of(0.0, phi_of_row_0, phi_per_row),
@@ -108,9 +116,11 @@ def _stem(name: str, used: set[str]) -> str:
     return stem
 
 
-def write_unrolled(folder: str | Path, appearance_map: "AppearanceMap", px_m: float | None = None) -> list[Path]:
+def write_unrolled(folder: str | Path, appearance_map: "AppearanceMap", px_m: float | None = None,
+                   chainage_of_start: dict | None = None) -> list[Path]:
     """unrolled/<name>.png and <name>.json for every piece with `unroll` that some keyframe saw;
-    px_m defaults to the map's settings.unrolled_px_m. Returns the PNG paths."""
+    px_m defaults to the map's settings.unrolled_px_m; chainage_of_start: piece name -> chainage of its axis
+    start (column 0; 0 where not given). Returns the PNG paths."""
     folder = Path(folder)
     px = float(px_m if px_m is not None else appearance_map.settings.unrolled_px_m)
     if not px > 0:
@@ -121,7 +131,7 @@ def write_unrolled(folder: str | Path, appearance_map: "AppearanceMap", px_m: fl
         if not pm.piece.unroll or not pm.seen.any():
             continue
         folder.mkdir(parents=True, exist_ok=True)
-        img, meta = unrolled_image(pm, px)
+        img, meta = unrolled_image(pm, px, (chainage_of_start or {}).get(pm.piece.name, 0.0))
         stem = _stem(pm.piece.name, used)
         ok, png = cv2.imencode(".png", img)
         if not ok:

@@ -117,7 +117,8 @@ def wall_sidecar(wall: UnrolledWall, radius: float, R_first: np.ndarray, C_first
         "pipe", rows, cols, start=world(wall.h0), end=world(wall.h0 + (cols - 1) * mpp), radius=radius,
         up=np.array([0.0, 1.0, 0.0]) @ R_first, px_m=mpp, along_m=mpp,
         phi_of_row_0=(wall.rho0 + (rows - 1) * mpp) / radius, phi_per_row=-mpp / radius,
-        seen_fraction=float(np.isfinite(wall.image).mean()))
+        seen_fraction=float(np.isfinite(wall.image).mean()),
+        chainage_of_column_0=float(wall.h0 - C_first[2]))  # one piece: chainage from the first camera's place
 
 
 def unroll_poses(images: Iterable[np.ndarray], camera: CameraModel, radius: float, R: np.ndarray, C: np.ndarray,

@@ -1,0 +1,49 @@
+"""The route of a network result: its wall pieces (straight sections, in the order passed) joined at the
+junction passes between them (run.json `wall_pieces`, `straight_sections`, `junction_passes`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipemap.inspection.route import Route
+from pipemap.inspection.route_build import Joint, Leg, build_route
+from pipemap.inspection.up import estimate_up
+
+
+def legs_and_joints(pieces: list[dict], sections: list[dict], passes: list[dict]) -> tuple[list[Leg], list[Joint]]:
+    """The straight legs (one per wall piece that unrolls, in order) and the junction passes between them: the
+    pass whose keyframes lie after one leg's section and before the next one's; `gap` where there is none."""
+    span = {f"S{s['section']}": (int(s["first_keyframe"]), int(s["last_keyframe"])) for s in sections}
+    legs = [Leg(str(p["name"]), np.asarray(p["start"], float), np.asarray(p["end"], float))
+            for p in pieces if p.get("unroll", True)]
+    joints = []
+    for a, b in zip(legs, legs[1:]):
+        lo, hi = span.get(a.name, (None, None))[1], span.get(b.name, (None, None))[0]
+        found = None
+        if lo is not None and hi is not None:
+            found = next((j for j in passes if int(j.get("first_keyframe", -1)) >= lo
+                          and int(j.get("last_keyframe", 10**9)) <= hi), None)
+        if found is None:
+            joints.append(Joint(f"{a.name}-{b.name}", "gap"))
+            continue
+        bend = found.get("bend_radius_m")
+        joints.append(Joint(str(found["id"]), str(found.get("type", "tee")),
+                            np.asarray(found["centroid"], float) if found.get("type") != "elbow" else None,
+                            float(bend) if bend is not None else float("nan")))
+    return legs, joints
+
+
+def network_route(pieces: list[dict], sections: list[dict], passes: list[dict], poses: np.ndarray, radius: float,
+                  up_choice="image") -> Route | None:
+    """The route of a network result and its 12 o'clock estimate (keyframe poses T_wc (K, 4, 4)); None without
+    a straight piece."""
+    legs, joints = legs_and_joints(pieces, sections, passes)
+    if not legs or not len(poses):
+        return None
+    starts = np.array([leg.start for leg in legs])
+    ends = np.array([leg.end for leg in legs])
+    up, record = estimate_up(poses[:, :3, :3], poses[:, :3, 3], starts, ends, radius, up_choice)
+    return build_route(legs, joints, poses[0, :3, 3], poses[-1, :3, 3], up, radius, record)
+
+
+__all__ = ["legs_and_joints", "network_route"]

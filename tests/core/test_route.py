@@ -1,0 +1,104 @@
+"""The route's chainage and clock against the network's own arc-length maths, the up estimate, the wall cast,
+observations' clock arcs and the plan similarity of the exports."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipemap.errors import PipemapError
+from pipemap.inspection.export import network_geojson, plan_similarity, sections_csv
+from pipemap.inspection.observations import clock_arc
+from pipemap.inspection.route import Route
+from pipemap.inspection.route_build import Joint, Leg, build_route
+from pipemap.inspection.up import estimate_up
+from pipemap.inspection.wall_cast import cast_to_wall, wall_shapes
+from pipemap.network import Segment
+
+R = 0.15
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def elbow_route() -> tuple[Route, Segment]:
+    """1.55 m along +x, a 90 deg elbow of bend radius 0.45 about (1.55, 0.45), then 1 m along +y."""
+    legs = [Leg("S0", np.array([0.0, 0, 0]), np.array([1.55, 0, 0])),
+            Leg("S2", np.array([2.0, 0.45, 0]), np.array([2.0, 1.45, 0]))]
+    route = build_route(legs, [Joint("E1", "elbow", None, 0.45)], np.array([0.2, 0.0, -0.04]),
+                        np.array([2.0, 1.3, -0.04]), UP, R, {"method": "test"})
+    arc = Segment("E1.arc", np.array([1.55, 0, 0]), np.array([2.0, 0.45, 0]), np.array([1.55, 0.45, 0]))
+    return route, arc
+
+
+def test_chainage_follows_the_arc_as_the_network_measures_it():
+    route, arc = elbow_route()
+    assert [s.kind for s in route.segments] == ["line", "arc", "line"]
+    assert route.segments[1].chainage_start == pytest.approx(1.35, abs=1e-9)  # from the first camera at x = 0.2
+    assert route.length == pytest.approx(1.35 + arc.length + 0.85, abs=1e-9)
+    h = np.linspace(0.0, arc.length, 7)
+    axis, tangent = arc.axis_points(h)
+    normal = np.cross(tangent, UP)  # 9 o'clock looking along the tangent: left of travel
+    c, k, rho, seg = route.to_route(axis - R * normal, wall=True)
+    np.testing.assert_allclose(c, 1.35 + h, atol=1e-9)
+    np.testing.assert_allclose(k, 270.0, atol=1e-6)
+    np.testing.assert_allclose(rho, R, atol=1e-9)
+    assert (seg[1:] == 1).all()  # the arc's first point is also the line's last, at the same chainage
+    assert route.nodes[0][0] == "E1" and route.nodes[0][2] == pytest.approx(1.35 + arc.length / 2)
+
+
+def test_clock_convention_and_round_trip():
+    route, _ = elbow_route()
+    # looking along +x with z up: 12 o'clock is +z, 3 o'clock is -y (the right hand side)
+    c, k, _, _ = route.to_route([[1.0, 0, R], [1.0, -R, 0], [1.0, 0, -R], [1.0, R, 0]])
+    np.testing.assert_allclose(k, [0, 90, 180, 270], atol=1e-9)
+    rng = np.random.default_rng(0)
+    chain = rng.uniform(0.0, route.length, 50)
+    clock = rng.uniform(0.0, 360.0, 50)
+    back = route.to_route(route.from_route(chain, clock), wall=True)
+    np.testing.assert_allclose(back[0], chain, atol=1e-9)
+    np.testing.assert_allclose((back[1] - clock + 180) % 360 - 180, 0.0, atol=1e-7)
+
+
+def test_up_from_image_up_and_camera_side():
+    rng = np.random.default_rng(1)
+    n = 40
+    centres = np.column_stack([np.linspace(0, 1.5, n), np.zeros(n), np.full(n, -0.04)])
+    roll = np.radians(rng.normal(0.0, 0.5, n))
+    rots = []
+    for a in roll:  # camera looks along +x, image down (y) = -z turned by the roll about x
+        y = -np.array([0.0, -np.sin(a), np.cos(a)])
+        rots.append(np.column_stack([np.cross(y, [1.0, 0, 0]), y, [1.0, 0, 0]]))
+    up, record = estimate_up(np.array(rots), centres, np.array([[0.0, 0, 0]]), np.array([[1.5, 0, 0]]), R)
+    assert np.degrees(np.arccos(up @ UP)) < 0.3  # the mean of 40 rolls of 0.5 deg
+    assert record["camera_side_vs_image_deg"] < 0.3 and record["roll_spread_deg"] == pytest.approx(0.5, abs=0.2)
+    with pytest.raises(PipemapError):
+        estimate_up(np.array(rots), centres * [1, 1, 0], np.array([[0.0, 0, 0]]), np.array([[1.5, 0, 0]]), R,
+                    "camera-side")
+
+
+def test_wall_cast_meets_the_tube_and_the_bend():
+    route, arc = elbow_route()
+    pieces = [{"name": "S0", "start": [0.0, 0, 0], "end": [1.55, 0, 0], "radius": R},
+              {"name": "S2", "start": [2.0, 0.45, 0], "end": [2.0, 1.45, 0], "radius": R}]
+    tubes, bends = wall_shapes(pieces, route)
+    origin = np.array([0.5, 0.0, -0.04])
+    dirs = np.array([[0.0, 0, 1], [0.0, -1, 0], [1.0, 0, 0]])
+    p, ok = cast_to_wall(origin, dirs, tubes, bends)
+    assert ok.all()
+    np.testing.assert_allclose(p[0], [0.5, 0, R], atol=1e-9)
+    np.testing.assert_allclose(p[1], [0.5, -np.sqrt(R**2 - 0.04**2), -0.04], atol=1e-9)
+    # straight ahead the ray meets the outside of the bend: on the torus wall
+    q = p[2] - arc.centre
+    assert np.hypot(np.hypot(q[0], q[1]) - 0.45, q[2]) == pytest.approx(R, abs=1e-7)
+
+
+def test_clock_arc_and_plan_similarity():
+    assert clock_arc(np.array([350.0, 10.0, 0.0])) == (350.0, 10.0)
+    assert clock_arc(np.array([80.0, 100.0])) == (80.0, 100.0)
+    A, b, scale = plan_similarity([0, 0], [10, 0], [100, 200], [100, 210])
+    np.testing.assert_allclose(A @ [10, 0] + b, [100, 210], atol=1e-9)
+    assert scale == pytest.approx(1.0)
+    route, _ = elbow_route()
+    doc = network_geojson(route)
+    starts = [f for f in doc["features"] if f["properties"].get("id") == "start"]
+    np.testing.assert_allclose(starts[0]["geometry"]["coordinates"], [0, 0, 0], atol=1e-9)
+    assert sections_csv(route).splitlines()[2].startswith("E1,arc,start,end,1.350,")
