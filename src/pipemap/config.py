@@ -267,15 +267,17 @@ class DeformationSettings(_Section):
     min_points: int = Field(40, ge=8, description="fewest points a slice needs (after outliers)")
     min_cover_deg: float = Field(300.0, gt=0, le=360, description="a slice's points must cover this much of the "
                                  "circle (in 10 deg bins)")
-    bin_deg: float = Field(10.0, gt=0, le=45, description="width of the bins whose medians give the largest "
-                           "inward and outward deviation (a dent)")
+    bin_deg: float = Field(8.0, gt=0, le=45, description="width around of the cells whose medians give the "
+                           "largest inward and outward deviation (a dent)")
+    dent_cell_m: float = Field(0.015, gt=0, description="length along of those cells (sparse points)")
     outlier_mads: float = Field(4.0, gt=0, description="points farther than this many MADs from a slice's fit are "
                                 "dropped")
     min_parallax_deg: float = Field(2.0, gt=0, description="sparse re-triangulation: the widest angle between a "
                                     "point's rays")
     max_ray_error_deg: float = Field(0.15, gt=0, description="sparse re-triangulation: drop points whose ray "
                                      "misses an observation by more than this")
-    dense: bool = Field(True, description="also search the wall's radius densely by photo-consistency")
+    dense: bool = Field(False, description="also search the wall's radius densely by photo-consistency (cylinder "
+                        "sweep; experimental: several percentage points of ovality off on deformed-pipe)")
     dense_search_m: float = Field(0.02, gt=0, description="dense search: +- this around the a-priori radius")
     dense_step_m: float = Field(0.0005, gt=0, description="dense search: radius step")
     dense_cell_m: float = Field(0.003, gt=0, description="dense search: wall cell size along and around")

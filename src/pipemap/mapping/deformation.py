@@ -10,7 +10,9 @@ D(phi) = r(phi) + r(phi + pi) (odd terms, a centre offset among them, cancel), s
 - diameter_min / diameter_max = the least and greatest D(phi); ovality % = (Dmax - Dmin) / Dmean * 100 with
   Dmean the mean of D(phi) over all directions (for an ellipse, twice ASTM F1216's (Dmean - Dmin) / Dmean);
 - max_inward / max_outward: the largest deviation below / above the a-priori radius of the median radius in
-  `bin_deg` bins around the circle, after the fitted centre offset (first harmonic) is taken out.
+  cells of `bin_deg` around by `dent_cell_m` along within the slice's band, after the fitted centre offset
+  (first harmonic) is taken out: the deepest point of the slice's stretch of wall, so that a dent between
+  two slice positions is not missed.
 """
 
 from __future__ import annotations
@@ -53,8 +55,9 @@ def wall_samples(piece: WallPiece, points: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def profile(h_c: float, phi: np.ndarray, r: np.ndarray, radius: float, s: DeformationSettings, piece: str,
-            source: str) -> SliceProfile | None:
-    """The slice at h_c from its points' phi, r (None: too few points, or they leave the circle open)."""
+            source: str, h: np.ndarray | None = None) -> SliceProfile | None:
+    """The slice at h_c from its points' phi, r and h (None: a ring; too few points, or they leave the
+    circle open: None)."""
     bins = np.floor(np.mod(phi, 2 * np.pi) / np.radians(10.0)).astype(int)
     keep = np.isfinite(r)
     for _ in range(3):
@@ -70,14 +73,24 @@ def profile(h_c: float, phi: np.ndarray, r: np.ndarray, radius: float, s: Deform
     grid = np.linspace(0.0, np.pi, 360, endpoint=False)
     D = _basis(grid, s.harmonics) @ coef + _basis(grid + np.pi, s.harmonics) @ coef
     centred = r[keep] - _basis(phi[keep], 1)[:, 1:] @ coef[1:3]
-    b = np.floor(np.mod(phi[keep], 2 * np.pi) / np.radians(s.bin_deg)).astype(int)
-    counts = np.bincount(b)
-    medians = np.array([np.median(centred[b == k]) for k in np.flatnonzero(counts >= 3)])
+    medians = _cell_medians(centred, phi[keep], None if h is None else h[keep], s)
     if medians.size == 0:
         return None
     return SliceProfile(piece, round(float(h_c), 4), source, int(keep.sum()), float(D[180]), float(D[0]),
                         float(D.min()), float(D.max()), float((D.max() - D.min()) / D.mean() * 100.0),
                         float(max(0.0, radius - medians.min())), float(max(0.0, medians.max() - radius)))
+
+
+def _cell_medians(centred: np.ndarray, phi: np.ndarray, h: np.ndarray | None, s: DeformationSettings) -> np.ndarray:
+    """Median radius in cells of `bin_deg` around by `dent_cell_m` along (one ring when h is None) that hold
+    at least three points: a dent between two slices still shows in the slice whose band holds it."""
+    b = np.floor(np.mod(phi, 2 * np.pi) / np.radians(s.bin_deg)).astype(np.int64)
+    if h is not None:
+        b = b * 100000 + np.floor(h / s.dent_cell_m).astype(np.int64)
+    keys, inv, counts = np.unique(b, return_inverse=True, return_counts=True)
+    order = np.argsort(inv, kind="stable")
+    groups = np.split(centred[order], np.cumsum(counts)[:-1])
+    return np.array([np.median(g) for g, n in zip(groups, counts) if n >= 3])
 
 
 def _basis(phi: np.ndarray, harmonics: int) -> np.ndarray:
@@ -108,7 +121,7 @@ def sparse_profiles(piece: WallPiece, points: np.ndarray, radius: float, s: Defo
     out = []
     for h_c in slice_positions(piece, s):
         sel = near & (np.abs(h - h_c) <= s.sparse_band_m)
-        p = profile(h_c, phi[sel], r[sel], radius, s, piece.name, "sparse")
+        p = profile(h_c, phi[sel], r[sel], radius, s, piece.name, "sparse", h[sel])
         if p is not None:
             out.append(p)
     return out

@@ -19,7 +19,7 @@ for, simulate() keeps the first N frames of the route at the same spacing.
   the cross, "B" drives the bends backwards and passes the cross straight through, "C" the 90 deg elbow and
   the cross straight along its main pipe.
 - deformed-pipe: a straight 300 mm pipe of round pieces, a 3 % and a 6 % oval piece and a piece with a
-  10 mm dent (issue 22's deformation measurement), 640x480 fisheye; route "short" shrinks the pieces.
+  10 mm dent (issue 22's deformation measurement), 640x480 fisheye; routes "short" and "tiny" shrink the pieces.
 - demo-loop: a small 2 m x 1.5 m tee loop at 640x480, fast; route "A" drives the lap and on
   past its start along the first side, so the run revisits it (loop closure).
 - cctv-loop / cctv-straight: a sewer crawler's forward-looking CCTV camera (100 deg, barrel
@@ -314,7 +314,7 @@ def deformed_scene(radius: float = 0.15, scale: float = 1.0) -> PipeScene:
 
 
 def _deformed(width, height, route, seed):
-    scale = 0.6 if route == "short" else 1.0
+    scale = {"short": 0.6, "tiny": 0.4}.get(route, 1.0)
     scene = deformed_scene(scale=scale)
     length = float(scene.runs["S1"][-1, 0])
     drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", start_m=0.3, end_m=length - 0.5 * scale)
@@ -443,8 +443,8 @@ register_preset("paper-straight-16in", "2010 report pipe 2: 4 m x 387.56 mm, per
 register_preset("fisheye-straight", "one straight 6 m x 400 mm pipe, 190 deg fisheye 1280x960",
                 ("forward", "forward-reverse"), _fisheye_straight)
 register_preset("deformed-pipe", "straight 300 mm pipe, fisheye 640x480: round pieces between a 3 % and a 6 % "
-                "oval piece and one with a 10 mm dent; route short: the pieces at 0.6 of their length",
-                ("full", "short"), _deformed)
+                "oval piece and one with a 10 mm dent; routes short, tiny: pieces at 0.6, 0.4 of their length",
+                ("full", "short", "tiny"), _deformed)
 register_preset("demo-loop", "small 2 m x 1.5 m tee loop, fisheye 640x480 (fast)", ("A", "B"), _demo_loop)
 register_preset("tee-pass-loop", "3.0 m x 2.2 m loop of 300 mm pipe, a tee at each corner, fisheye 640x480: "
                 "A leaves T1's stub straight through T1, turns at T4, T3, T2, meets T1 head-on along its branch and "
