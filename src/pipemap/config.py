@@ -256,6 +256,35 @@ class AppearanceSettings(_Section):
                                      "(mapping/exposure.py)")
 
 
+class DeformationSettings(_Section):
+    """Ovality, diameters and dents of the straight pieces every slice_m (laser profilers' 10 cm, ASTM F3080),
+    from the sparse points triangulated again without the cylinder term, and from the dense wall search."""
+
+    enabled: bool = Field(True, description="write deformation.csv and deformation.png in pipemap run")
+    slice_m: float = Field(0.1, gt=0, description="spacing of the slices along each straight piece")
+    sparse_band_m: float = Field(0.05, gt=0, description="sparse points within this of a slice's h count for it")
+    harmonics: int = Field(4, ge=2, le=12, description="Fourier terms of r(phi) fitted per slice (2: an ellipse)")
+    min_points: int = Field(40, ge=8, description="fewest points a slice needs (after outliers)")
+    min_cover_deg: float = Field(300.0, gt=0, le=360, description="a slice's points must cover this much of the "
+                                 "circle (in 10 deg bins)")
+    bin_deg: float = Field(8.0, gt=0, le=45, description="width around of the cells whose medians give the "
+                           "largest inward and outward deviation (a dent)")
+    dent_cell_m: float = Field(0.015, gt=0, description="length along of those cells (sparse points)")
+    outlier_mads: float = Field(4.0, gt=0, description="points farther than this many MADs from a slice's fit are "
+                                "dropped")
+    min_parallax_deg: float = Field(2.0, gt=0, description="sparse re-triangulation: the widest angle between a "
+                                    "point's rays")
+    max_ray_error_deg: float = Field(0.15, gt=0, description="sparse re-triangulation: drop points whose ray "
+                                     "misses an observation by more than this")
+    dense: bool = Field(False, description="also search the wall's radius densely by photo-consistency (cylinder "
+                        "sweep; experimental: several percentage points of ovality off on deformed-pipe)")
+    dense_search_m: float = Field(0.02, gt=0, description="dense search: +- this around the a-priori radius")
+    dense_step_m: float = Field(0.0005, gt=0, description="dense search: radius step")
+    dense_cell_m: float = Field(0.003, gt=0, description="dense search: wall cell size along and around")
+    dense_window_cells: int = Field(5, ge=1, description="dense search: cost summed over this many cells square")
+    dense_views: int = Field(6, ge=2, description="dense search: keyframes compared per slice")
+
+
 class DenseSettings(_Section):
     """Dense straight-pipe VO (2010 report section 4)."""
 
@@ -463,6 +492,7 @@ class Settings(_Section):
     evidence: EvidenceSettings = EvidenceSettings()
     loop_closure: LoopClosureSettings = LoopClosureSettings()
     appearance: AppearanceSettings = AppearanceSettings()
+    deformation: DeformationSettings = DeformationSettings()
     dense: DenseSettings = DenseSettings()
     sparse: SparseSettings = SparseSettings()
     gain_mask: GainMaskSettings = GainMaskSettings()

@@ -53,6 +53,8 @@ from pipemap.geometry.bend import OFFSET_SIGMA_M
 from pipemap.inspection.network_route import network_route
 from pipemap.inspection.route import Route, frame_chainage, write_route
 from pipemap.mapping import WallPiece, write_maps
+from pipemap.mapping.deformation_stage import measure_deformation, write_deformation
+from pipemap.mapping.wall_depth import dense_profiles
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.quality import FrameStats, RunVerdict, network_verdict, require_mappable
 from pipemap.results import run_record, write_run_json
@@ -255,7 +257,7 @@ def write_junctions(path: Path, junctions: list[MappedJunction], route: Route | 
 
 
 def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: NetworkResult, settings: Settings,
-                  seconds: dict, maps: dict | None = None) -> None:
+                  seconds: dict, maps: dict | None = None, deformation: dict | None = None) -> None:
     """trajectory.tum, junctions.yaml, sparse.ply, frames.csv and run.json into `folder`."""
     t0 = time.perf_counter()
     result = net.straight
@@ -299,6 +301,7 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
         route=None if net.route is None else {"length_m": round(net.route.length, 4),
                                               "up_estimate": net.route.up_source},
         appearance=maps,
+        deformation=deformation,
         tee_solves=[r.to_dict() for r in net.joins],
         loop_closure=None if net.revisit is None else net.revisit.to_dict(),
         windows=[w.to_dict() for w in result.windows],
@@ -335,13 +338,26 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
             maps = write_maps(tmp, dataset, net.straight.indices, net.map.poses,
                               [WallPiece.from_dict(d) for d in net.wall_pieces], settings,
                               usable=None if front.mask is None else front.mask.usable, route=net.route)
+        deformation = None
+        if settings.deformation.enabled and net.wall_pieces:
+            stage("deformation")
+            indices = net.straight.indices
+
+            def dense(piece):
+                return dense_profiles(piece, dataset.camera, net.map.poses,
+                                      lambda k: dataset.read(int(indices[k])).image, dataset.radius_m,
+                                      settings.deformation)
+
+            rows, deformation = measure_deformation(net.map, [WallPiece.from_dict(d) for d in net.wall_pieces],
+                                                    dataset.radius_m, settings, dense)
+            write_deformation(tmp, rows, dataset.radius_m)
         stage("writing")
         seconds = dict(front.seconds)
         seconds.update(net.seconds)
         if maps is not None:
             seconds.update(maps["seconds"])
         seconds["total"] = time.perf_counter() - start
-        write_results(tmp, dataset, front, net, settings, seconds, maps)
+        write_results(tmp, dataset, front, net, settings, seconds, maps, deformation)
     return PipelineResult(Path(out_dir), front.image_count, len(net.straight.indices), net.map, net.tees,
                           seconds, front.footage, front.mask, net.quality)
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from pipemap.errors import PipemapError
 from pipemap.network import Junction, PipeNetwork, Segment
+from pipemap.sim.wall_shape import WallShape
 
 _JOINT_MARGIN_M = 1e-3  # overlap beyond the geometric minimum at kinked joints
 
@@ -40,6 +41,7 @@ class Pipe:
     extend_end: float = 0.0
     up: np.ndarray | None = None  # phi = 0 direction across the axis (None: the world's up, see frame)
     chain: tuple | None = None  # (texture key, chainage of `start` along the chain, chain length): shared wall
+    shape: WallShape | None = None  # an oval or dented cross-section (None: round)
 
     @property
     def length(self) -> float:

@@ -18,6 +18,8 @@ for, simulate() keeps the first N frames of the route at the same spacing.
   (2 D) and a 30 deg sweeping bend (10 D) at 640x480 fisheye; route "A" drives through them all turning at
   the cross, "B" drives the bends backwards and passes the cross straight through, "C" the 90 deg elbow and
   the cross straight along its main pipe.
+- deformed-pipe: a straight 300 mm pipe of round pieces, a 3 % and a 6 % oval piece and a piece with a
+  10 mm dent (issue 22's deformation measurement), 640x480 fisheye; routes "short" and "tiny" shrink the pieces.
 - demo-loop: a small 2 m x 1.5 m tee loop at 640x480, fast; route "A" drives the lap and on
   past its start along the first side, so the run revisits it (loop closure).
 - cctv-loop / cctv-straight: a sewer crawler's forward-looking CCTV camera (100 deg, barrel
@@ -39,9 +41,10 @@ import numpy as np
 from pipemap.camera import CameraModel, KannalaBrandtCamera, PinholeCamera, PolynomialCamera
 from pipemap.errors import PipemapError
 from pipemap.network import Junction
-from pipemap.sim.network_model import PipeScene, network_scene, route_polyline, straight_scene, tee_loop_scene
+from pipemap.sim.network_model import Pipe, PipeScene, network_scene, route_polyline, straight_scene, tee_loop_scene
 from pipemap.sim.render import Appearance
 from pipemap.sim.route import Drive
+from pipemap.sim.wall_shape import Dent, WallShape
 
 # Fisheye paper, Table I: laser distances between tee centres (metres).
 TABLE_I = {("T1", "T2"): 8.150, ("T2", "T3"): 8.174, ("T3", "T4"): 8.159, ("T4", "T1"): 8.110,
@@ -283,6 +286,42 @@ def _fisheye_straight(width, height, route, seed):
                  Appearance(mm_per_px=1.0), 7.5)
 
 
+# issue 22's deformed pipe: round pieces between a 3 % oval one (major axis horizontal), a 6 % oval one (major
+# axis at 2 o'clock) and one with a 10 mm dent at 11 o'clock; (piece length, shape) in order, metres.
+DEFORMED_PIECES = (
+    (1.0, None),
+    (1.0, WallShape(3.0, 90.0)),
+    (0.8, None),
+    (1.0, WallShape(6.0, 60.0)),
+    (0.8, None),
+    (1.0, WallShape(0.0, 0.0, (Dent(0.5, 330.0, 0.010, 0.3, 60.0),))),
+    (1.0, None),
+)
+
+
+def deformed_scene(radius: float = 0.15, scale: float = 1.0) -> PipeScene:
+    """A straight pipe along +x of DEFORMED_PIECES, each piece's length times `scale` (a dent keeps its size
+    and sits in its piece's middle), both ends closed."""
+    pipes, h = [], 0.0
+    for k, (length, shape) in enumerate(DEFORMED_PIECES):
+        n = length * scale
+        if shape is not None and shape.dents:
+            shape = replace(shape, dents=tuple(replace(d, h_m=n / 2) for d in shape.dents))
+        pipes.append(Pipe(f"S1.{k + 1}", np.array([h, 0.0, 0.0]), np.array([h + n, 0.0, 0.0]), closed_start=k == 0,
+                          closed_end=k == len(DEFORMED_PIECES) - 1, shape=shape))
+        h += n
+    return PipeScene(float(radius), tuple(pipes), (), {"S1": np.array([[0.0, 0, 0], [h, 0, 0]])})
+
+
+def _deformed(width, height, route, seed):
+    scale = {"short": 0.6, "tiny": 0.4}.get(route, 1.0)
+    scene = deformed_scene(scale=scale)
+    length = float(scene.runs["S1"][-1, 0])
+    drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", start_m=0.3, end_m=length - 0.5 * scale)
+    return Setup("deformed-pipe", scene, fisheye_camera(width or 640, height or 480), scene.runs["S1"], drive,
+                 Appearance(mm_per_px=1.0), 7.5)
+
+
 def _straight_2010(name, *, length, diameter, gt_mm, base, hfov, k1, k2, fps, frames, offset_down, ring, mm_px,
                    width, height, route, seed, vignetting):
     radius = diameter / 2
@@ -403,6 +442,9 @@ register_preset("paper-straight-16in", "2010 report pipe 2: 4 m x 387.56 mm, per
                 ("forward-reverse", "forward"), _sixteen_inch)
 register_preset("fisheye-straight", "one straight 6 m x 400 mm pipe, 190 deg fisheye 1280x960",
                 ("forward", "forward-reverse"), _fisheye_straight)
+register_preset("deformed-pipe", "straight 300 mm pipe, fisheye 640x480: round pieces between a 3 % and a 6 % "
+                "oval piece and one with a 10 mm dent; routes short, tiny: pieces at 0.6, 0.4 of their length",
+                ("full", "short", "tiny"), _deformed)
 register_preset("demo-loop", "small 2 m x 1.5 m tee loop, fisheye 640x480 (fast)", ("A", "B"), _demo_loop)
 register_preset("tee-pass-loop", "3.0 m x 2.2 m loop of 300 mm pipe, a tee at each corner, fisheye 640x480: "
                 "A leaves T1's stub straight through T1, turns at T4, T3, T2, meets T1 head-on along its branch and "

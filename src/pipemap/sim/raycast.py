@@ -25,6 +25,7 @@ import numpy as np
 
 from pipemap.geometry.torus import ray_torus
 from pipemap.sim.network_model import PipeScene
+from pipemap.sim.wall_shape import refine_hits, shaped_lines
 
 
 @dataclass
@@ -70,6 +71,7 @@ class RayCaster:
         self.eps_h = 1e-4 if self.dtype == np.float32 else 1e-10
         self.inside_tol = 1e-3 if self.dtype == np.float32 else 1e-9
         self.neighbours, self.zones = self._adjacency()
+        self.shaped = shaped_lines(scene)
 
     # -- set-up ---------------------------------------------------------------------------------
 
@@ -177,7 +179,10 @@ class RayCaster:
         elif rest.size:
             t, p, c, h = self._full(geo, B[:, rest])
             t_out[rest], pipe_out[rest], cap_out[rest], h_out[rest] = t, p, c, h
-        return Hits(t_out, pipe_out, cap_out, h_out)
+        hits = Hits(t_out, pipe_out, cap_out, h_out)
+        if self.shaped:
+            refine_hits(self.shaped, self.r, R, origin, B, hits)
+        return hits
 
     def cast_world(self, origin: np.ndarray, directions: np.ndarray) -> Hits:
         """Rays from a world point along world directions (normalised here)."""

@@ -36,6 +36,7 @@ from pipemap.sim.render import Renderer, frame_rng
 from pipemap.sim.texture import STYLES
 from pipemap.sim.route import AxisPath, camera_trajectory, drive_distances, visits
 from pipemap.network import save_network
+from pipemap.sim.wall_shape import deformation_truth
 from pipemap.trajectory import Trajectory, write_tum
 
 __all__ = ["simulate", "list_presets", "plan", "Plan", "PRESETS"]
@@ -172,6 +173,9 @@ def _write_metadata(tmp: Path, preset: str, route: str | None, seed: int, p: Pla
     write_tum(tmp / "ground_truth" / "poses.tum", trajectory,
               header=f"pipemap simulate {preset} seed {seed}: true T_wc, timestamp = {clock}")
     save_network(tmp / "ground_truth" / "network.yaml", setup.scene.network(p.visits))
+    shapes = deformation_truth(setup.scene)
+    if shapes is not None:
+        (tmp / "ground_truth" / "deformation.yaml").write_text(yaml.safe_dump(shapes, sort_keys=False))
     record = {
         "preset": preset, "route": route, "seed": int(seed), **counts,
         "exposure": float(renderer.exposure), "drive": setup.drive.to_dict(),
