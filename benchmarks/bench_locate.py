@@ -7,7 +7,9 @@ colatitude band (the periphery where the map is made; pixels nearer the optical 
 pipe at grazing angles), the true wall point is cast exactly from the true pose into the simulator's scene,
 and its true chainage and clock are taken on the true route: the visited straight segments of
 ground_truth/network.yaml in the order the true camera passes them, joined as the estimate's route is (arcs
-at elbows), 12 o'clock = world +z, from the true position of the first keyframe. Acceptance (issue 22):
+at elbows), 12 o'clock = world +z, from the true position of the first keyframe. Like the estimate's, a point's
+coordinates are those along the pipe whose wall it lies on (the piece the true ray met): its route segment,
+or for a tee's stub, which the route never enters, the segment of the through pipe it continues. Acceptance:
 chainage error <= 0.1 % of chainage + 5 mm and clock error <= 3 deg. Also the share of errors within two
 of the reported sigmas. Prints and writes benchmarks/results/locate_<name>.json.
 """
@@ -65,9 +67,31 @@ def true_route(network, positions: np.ndarray, first: np.ndarray, last: np.ndarr
     for a, b in zip(legs, legs[1:]):
         arc = next((c for c in arcs if np.linalg.norm(c.start - a.end) < 1e-6 and np.linalg.norm(c.end - b.start)
                     < 1e-6), None)
-        joints.append(Joint(f"{a.name}-{b.name}", "elbow" if arc else "tee", None,
+        joints.append(Joint(arc.id if arc else f"{a.name}-{b.name}", "elbow" if arc else "tee", None,
                             arc.bend_radius if arc else float("nan")))
     return build_route(legs, joints, first, last, np.array([0.0, 0.0, 1.0]), network.radius_m, {"method": "truth"})
+
+
+def segment_of_piece(route: Route, network, piece_ids: list[str]) -> dict[str, str]:
+    """Route segment name of every scene piece: its own, or for a piece the route does not follow (a stub), the
+    route line whose axis it continues (within 1 mm and 0.1 deg)."""
+    lines = {s.id: s for s in network.segments if not s.is_arc}
+    names = {seg.name for seg in route.segments}
+    out = {}
+    for pid in piece_ids:
+        if pid in names or pid not in lines:
+            out[pid] = pid
+            continue
+        q = lines[pid]
+        for seg in route.segments:
+            if seg.kind != "line":
+                continue
+            u = (seg.end - seg.start) / np.linalg.norm(seg.end - seg.start)
+            off = [np.linalg.norm((x - seg.start) - ((x - seg.start) @ u) * u) for x in (q.start, q.end)]
+            if max(off) < 1e-3:
+                out[pid] = seg.name
+                break
+    return out
 
 
 def measure(result: Path, dataset: Path, pixels: int, seed: int) -> dict:
@@ -80,6 +104,8 @@ def measure(result: Path, dataset: Path, pixels: int, seed: int) -> dict:
     k0, k1 = res.keyframe_frames[0], res.keyframe_frames[-1]
     route = true_route(ds.network(), gt.positions, gt.positions[k0], gt.positions[k1])
     gt_chain = route.follow(gt.positions)
+    piece_ids = [p.id for p in scene.pieces]
+    piece_segment = segment_of_piece(route, ds.network(), piece_ids)
     lo, hi = np.radians(colatitude_band(AppearanceSettings(), ds.camera))
     rng = np.random.default_rng(seed)
     rows = []
@@ -100,7 +126,9 @@ def measure(result: Path, dataset: Path, pixels: int, seed: int) -> dict:
         b, _ = ds.camera.unproject(uv)
         hits = caster.cast(gt.rotations[frame], gt.positions[frame], b)
         truth = gt.positions[frame] + hits.t[:, None] * (b @ gt.rotations[frame].T)
-        tc, tk, _, _ = route.to_route(truth, wall=True, near_chainage=gt_chain[frame])
+        names = [piece_segment.get(piece_ids[k], "") for k in hits.pipe]
+        tc, tk, _, _ = route.to_route(truth, wall=True, near_chainage=gt_chain[frame],
+                                      segment=route.segments_named(names, gt_chain[frame]))
         est = locate_pixels(res, frame, uv)
         for i in range(len(uv)):
             rows.append(dict(frame=frame, keyframe=est.pose == "keyframe", truth_chainage=tc[i], truth_clock=tk[i],
