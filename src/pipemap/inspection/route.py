@@ -23,6 +23,7 @@ from pipemap.output import atomic_write_text
 FORMAT = "pipemap-route/1"
 TWO_PI = 2 * np.pi
 SIGHT_RADII = 10.0  # how far along the pipe from the camera a located wall point may lie
+NODE_TOLERANCE_M = 1e-3  # route.json keeps junction chainage to 0.1 mm, segment ends to 1 um
 PASS_TOLERANCE_RADII = 1.0  # where the route passes a place twice, the passes that fit this well compete
 
 
@@ -222,8 +223,8 @@ class Route:
         seg = self.segments[index]
         if seg.kind == "arc":
             return seg.name, seg.name
-        before = [j for j, _, c in self.nodes if c <= seg.chainage_start + 1e-6]
-        after = [j for j, _, c in self.nodes if c >= seg.chainage_end - 1e-6]
+        before = [j for j, _, c in self.nodes if c <= seg.chainage_start + NODE_TOLERANCE_M]
+        after = [j for j, _, c in self.nodes if c >= seg.chainage_end - NODE_TOLERANCE_M]
         return (before[-1] if before else "start"), (after[0] if after else "end")
 
     def to_dict(self) -> dict:
