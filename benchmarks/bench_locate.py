@@ -7,7 +7,9 @@ colatitude band (the periphery where the map is made; pixels nearer the optical 
 pipe at grazing angles), the true wall point is cast exactly from the true pose into the simulator's scene,
 and its true chainage and clock are taken on the true route: the visited straight segments of
 ground_truth/network.yaml in the order the true camera passes them, joined as the estimate's route is (arcs
-at elbows), 12 o'clock = world +z, from the true position of the first keyframe. Acceptance (issue 22):
+at elbows), 12 o'clock = world +z, from the true position of the first keyframe. Like the estimate's, a point's
+coordinates are those along the pipe whose wall it lies on (the piece the true ray met): its route segment,
+or for a tee's stub, which the route never enters, the segment of the through pipe it continues. Acceptance:
 chainage error <= 0.1 % of chainage + 5 mm and clock error <= 3 deg. Also the share of errors within two
 of the reported sigmas. Prints and writes benchmarks/results/locate_<name>.json.
 """
@@ -25,49 +27,12 @@ import yaml
 from pipemap.config import AppearanceSettings
 from pipemap.dataset import load_dataset
 from pipemap.inspection.locate import locate_pixels, open_result
-from pipemap.inspection.route import Route
-from pipemap.inspection.route_build import Joint, Leg, build_route
+from pipemap.evaluation.locate_truth import segment_of_piece, true_route
 from pipemap.mapping.appearance import colatitude_band
 from pipemap.sim.presets import get_setup
 from pipemap.sim.raycast import RayCaster
 
 RESULTS = Path(__file__).parent / "results"
-
-
-def true_route(network, positions: np.ndarray, first: np.ndarray, last: np.ndarray) -> Route:
-    """The route of the true camera centres (n, 3) through the network's straight segments."""
-    lines = [s for s in network.segments if not s.is_arc]
-    starts = np.array([s.start for s in lines])
-    d = np.array([s.end - s.start for s in lines])
-    q = positions[:, None, :] - starts[None]
-    s = np.clip(np.einsum("kli,li->kl", q, d) / np.einsum("li,li->l", d, d), 0, 1)
-    near = np.argmin(np.linalg.norm(q - s[..., None] * d[None], axis=2), axis=1)
-    order, runs = [], []
-    for k, seg in enumerate(near):  # visits of at least 5 frames, in order
-        if runs and runs[-1][0] == seg:
-            runs[-1][1].append(k)
-        else:
-            runs.append((seg, [k]))
-    runs = [r for r in runs if len(r[1]) >= 5]
-    for seg, ks in runs:
-        if order and order[-1][0] == seg:
-            order[-1][1].extend(ks)
-        else:
-            order.append((seg, list(ks)))
-    legs = []
-    for seg, ks in order:
-        line = lines[seg]
-        h = (positions[ks] - line.start) @ line.axis
-        forward = h[-1] >= h[0]
-        legs.append(Leg(line.id, line.start if forward else line.end, line.end if forward else line.start))
-    arcs = [s for s in network.segments if s.is_arc]
-    joints = []
-    for a, b in zip(legs, legs[1:]):
-        arc = next((c for c in arcs if np.linalg.norm(c.start - a.end) < 1e-6 and np.linalg.norm(c.end - b.start)
-                    < 1e-6), None)
-        joints.append(Joint(f"{a.name}-{b.name}", "elbow" if arc else "tee", None,
-                            arc.bend_radius if arc else float("nan")))
-    return build_route(legs, joints, first, last, np.array([0.0, 0.0, 1.0]), network.radius_m, {"method": "truth"})
 
 
 def measure(result: Path, dataset: Path, pixels: int, seed: int) -> dict:
@@ -80,6 +45,8 @@ def measure(result: Path, dataset: Path, pixels: int, seed: int) -> dict:
     k0, k1 = res.keyframe_frames[0], res.keyframe_frames[-1]
     route = true_route(ds.network(), gt.positions, gt.positions[k0], gt.positions[k1])
     gt_chain = route.follow(gt.positions)
+    piece_ids = [p.id for p in scene.pieces]
+    piece_segment = segment_of_piece(route, ds.network(), piece_ids)
     lo, hi = np.radians(colatitude_band(AppearanceSettings(), ds.camera))
     rng = np.random.default_rng(seed)
     rows = []
@@ -100,7 +67,9 @@ def measure(result: Path, dataset: Path, pixels: int, seed: int) -> dict:
         b, _ = ds.camera.unproject(uv)
         hits = caster.cast(gt.rotations[frame], gt.positions[frame], b)
         truth = gt.positions[frame] + hits.t[:, None] * (b @ gt.rotations[frame].T)
-        tc, tk, _, _ = route.to_route(truth, wall=True, near_chainage=gt_chain[frame])
+        names = [piece_segment.get(piece_ids[k], "") for k in hits.pipe]
+        tc, tk, _, _ = route.to_route(truth, wall=True, near_chainage=gt_chain[frame],
+                                      segment=route.segments_named(names, gt_chain[frame]))
         est = locate_pixels(res, frame, uv)
         for i in range(len(uv)):
             rows.append(dict(frame=frame, keyframe=est.pose == "keyframe", truth_chainage=tc[i], truth_clock=tk[i],

@@ -555,6 +555,8 @@ def export(
                                        "(default: the result folder)."),
     start_manhole: Optional[str] = typer.Option(None, "--start-manhole", help="E,N[,Z] of the start manhole."),
     end_manhole: Optional[str] = typer.Option(None, "--end-manhole", help="E,N[,Z] of the end manhole."),
+    crs: Optional[str] = typer.Option(None, "--crs", help="The manholes' projected coordinate system, e.g. "
+                                      "EPSG:27700 (written as the GeoJSON crs member)."),
     force: bool = typer.Option(False, "--force", help="Replace existing files."),
 ) -> None:
     """Sections as CSV and the network as GeoJSON (local metric frame; georeferenced with both manholes)."""
@@ -569,7 +571,7 @@ def export(
     route = load_route(result_dir, read_run(result_dir))
     a = None if start_manhole is None else _pair(start_manhole, "--start-manhole")
     b = None if end_manhole is None else _pair(end_manhole, "--end-manhole")
-    doc = network_geojson(route, a, b)
+    doc = network_geojson(route, a, b, crs)
     for name in ("sections.csv", "network.geojson"):
         check_new_file(folder / name, force)
     atomic_write_text(folder / "sections.csv", sections_csv(route))

@@ -439,6 +439,10 @@ class LocateSettings(_Section):
                                   "fraction of the chainage (Table I errors of the network pipeline: under 0.2 %)")
     rotation_sigma_deg: float = Field(0.2, ge=0, description="camera orientation, each axis")
     radius_sigma_m: float = Field(0.001, ge=0, description="the pipe's radius about the a-priori value")
+    register_frames: bool = Field(True, description="orient a frame between keyframes by registering its image to "
+                                  "the nearest keyframe's (when the run's dataset can be read), not by slerp")
+    register_threshold_px: float = Field(2.0, gt=0, description="inlier threshold of that registration's five-point "
+                                         "MSAC, in pixels at the image centre")
 
 
 class QualitySettings(_Section):

@@ -82,8 +82,8 @@ def test_wall_cast_meets_the_tube_and_the_bend():
     tubes, bends = wall_shapes(pieces, route)
     origin = np.array([0.5, 0.0, -0.04])
     dirs = np.array([[0.0, 0, 1], [0.0, -1, 0], [1.0, 0, 0]])
-    p, ok = cast_to_wall(origin, dirs, tubes, bends)
-    assert ok.all()
+    p, ok, shape = cast_to_wall(origin, dirs, tubes, bends)
+    assert ok.all() and shape.tolist() == [0, 0, 2]
     np.testing.assert_allclose(p[0], [0.5, 0, R], atol=1e-9)
     np.testing.assert_allclose(p[1], [0.5, -np.sqrt(R**2 - 0.04**2), -0.04], atol=1e-9)
     # straight ahead the ray meets the outside of the bend: on the torus wall
@@ -101,4 +101,25 @@ def test_clock_arc_and_plan_similarity():
     doc = network_geojson(route)
     starts = [f for f in doc["features"] if f["properties"].get("id") == "start"]
     np.testing.assert_allclose(starts[0]["geometry"]["coordinates"], [0, 0, 0], atol=1e-9)
-    assert sections_csv(route).splitlines()[2].startswith("E1,arc,start,end,1.350,")
+    rows = sections_csv(route).splitlines()
+    assert rows[1].startswith("S0,line,start,E1,0.000,")
+    assert rows[2].startswith("E1,arc,E1,E1,1.350,")  # an elbow's arc lies inside the elbow
+    assert rows[3].startswith("S2,line,E1,end,")
+    assert "crs" not in doc and "not WGS84" in doc["properties"]["crs"]
+
+
+def test_georeferenced_geojson_names_its_coordinate_system():
+    route, _ = elbow_route()
+    end = route.from_route(route.length, 0.0, 0.0)[0]
+    start = route.from_route(0.0, 0.0, 0.0)[0]
+    plan = float(np.hypot(*(end - start)[:2]))
+    doc = network_geojson(route, [500000.0, 180000.0], [500000.0, 180000.0 + plan], "EPSG:27700")
+    assert doc["crs"] == {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::27700"}}
+    assert doc["properties"]["scale"] == pytest.approx(1.0, abs=1e-9)
+    nodes = {f["properties"]["id"]: f["geometry"]["coordinates"] for f in doc["features"]
+             if f["properties"]["kind"] == "node"}
+    np.testing.assert_allclose(nodes["end"][:2], [500000.0, 180000.0 + plan], atol=1e-4)
+    with pytest.raises(PipemapError, match="EPSG"):
+        network_geojson(route, [0.0, 0.0], [0.0, plan], "British grid")
+    with pytest.raises(PipemapError, match="--start-manhole"):
+        network_geojson(route, crs="EPSG:27700")

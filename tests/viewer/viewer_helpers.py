@@ -30,13 +30,17 @@ def wall_point(piece: WallPiece, h: float, clock_deg: float) -> np.ndarray:
 
 def copy_result(case: ViewerCase, dest: Path, chainage_of: dict[str, float] | None = None) -> Path:
     """A copy of the case's result; `chainage_of` {piece: chainage of column 0} makes its sidecars
-    pipemap-unrolled/2 as the route's chainage writes them."""
+    pipemap-unrolled/2 as the route's chainage writes them, the others pipemap-unrolled/1 (no chainage)."""
     shutil.copytree(case.result, dest)
     for side in (dest / "unrolled").glob("*.json"):
         meta = json.loads(side.read_text())
         if chainage_of and meta["piece"] in chainage_of:
             meta["format"] = "pipemap-unrolled/2"
             meta["chainage_of_column_0_m"] = chainage_of[meta["piece"]]
+        else:
+            meta["format"] = "pipemap-unrolled/1"
+            meta.pop("chainage_of_column_0_m", None)
+            meta.pop("chainage", None)
         side.write_text(json.dumps(meta))
     return dest
 

@@ -4,6 +4,12 @@ The GeoJSON is in a local metric frame: origin at the route's start, z = 12 o'cl
 segment's direction across up, y = z x x; coordinates are (x, y, z) in metres. Given the start and end
 manholes' plan coordinates (e.g. easting, northing), the plan is mapped onto them by the 2D similarity that
 takes the route's start and end there (the scale it needed is reported: ~1 for a good survey).
+
+RFC 7946 takes GeoJSON coordinates as WGS84 longitude/latitude, which neither frame is: its section 4 leaves other
+systems to a prior arrangement, so the file says what it holds (`properties.frame`, `properties.crs`) and, for
+manhole coordinates in a named projected system (`crs`, e.g. EPSG:27700), carries the GeoJSON 2008 `crs` member
+that GDAL and QGIS read. Turning projected coordinates into longitude/latitude is left to those tools
+(`ogr2ogr -t_srs EPSG:4326`): a datum transformation is theirs to get right.
 """
 
 from __future__ import annotations
@@ -25,10 +31,8 @@ def sections_csv(route: Route) -> str:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(SECTION_COLUMNS)
-    for seg in route.segments:
-        before = [j for j, _, c in route.nodes if c <= seg.chainage_start + 1e-6]
-        after = [j for j, _, c in route.nodes if c >= seg.chainage_end - 1e-6]
-        w.writerow([seg.name, seg.kind, before[-1] if before else "start", after[0] if after else "end",
+    for i, seg in enumerate(route.segments):
+        w.writerow([seg.name, seg.kind, *route.nodes_around(i),
                     f"{seg.chainage_start:.3f}", f"{seg.chainage_end:.3f}", f"{seg.length:.3f}",
                     f"{2000 * route.radius:.0f}"])
     return buf.getvalue()
@@ -59,7 +63,12 @@ def plan_similarity(local_start, local_end, start_en, end_en) -> tuple[np.ndarra
     return A, p - A @ a, abs(m)
 
 
-def network_geojson(route: Route, start_en=None, end_en=None, step_m: float = 0.05) -> dict:
+def network_geojson(route: Route, start_en=None, end_en=None, crs: str | None = None, step_m: float = 0.05) -> dict:
+    """The route's segments (LineStrings) and nodes (Points) in the local frame, or on the manholes' plan
+    coordinates (both or neither) in the projected system `crs` names (e.g. EPSG:27700; None: unnamed)."""
+    if crs is not None and start_en is None:
+        raise PipemapError("a coordinate system only applies to manhole coordinates: give --start-manhole and "
+                           "--end-manhole too", key="--crs")
     origin, R = local_frame(route)
 
     def local(points):
@@ -91,10 +100,26 @@ def network_geojson(route: Route, start_en=None, end_en=None, step_m: float = 0.
                       "geometry": {"type": "Point", "coordinates": place(route.from_route(c, 0.0, 0.0))[0]},
                       "properties": {"kind": "node", "id": jid, "type": jtype, "chainage_m": round(c, 3)}})
     frame = "local metric: origin at the route start, x along the first section, z up (12 o'clock)"
+    crs_note = "local engineering frame in metres (not WGS84 longitude/latitude)"
     if start_en is not None:
         frame = "plan coordinates of the manholes given (a similarity in the plane), z metres above the start"
-    return {"type": "FeatureCollection", "features": feats,
-            "properties": {"frame": frame, "scale": round(scale, 6), "route_length_m": round(route.length, 3)}}
+        crs_note = crs or "the manholes' plan coordinate system (unnamed; not WGS84 longitude/latitude)"
+    doc = {"type": "FeatureCollection", "features": feats,
+           "properties": {"frame": frame, "crs": crs_note, "scale": round(scale, 6),
+                          "route_length_m": round(route.length, 3)}}
+    if crs is not None:
+        doc["crs"] = {"type": "name", "properties": {"name": _crs_urn(crs)}}
+    return doc
+
+
+def _crs_urn(crs: str) -> str:
+    """EPSG:27700 -> urn:ogc:def:crs:EPSG::27700 (the form GDAL reads); anything else as given."""
+    auth, _, code = crs.strip().partition(":")
+    if auth.upper() == "EPSG" and code.isdigit():
+        return f"urn:ogc:def:crs:EPSG::{code}"
+    if crs.startswith("urn:ogc:def:crs:"):
+        return crs
+    raise PipemapError(f"expected a coordinate system as EPSG:<code>, got {crs!r}", key="--crs")
 
 
 def dumps_geojson(doc: dict) -> str:

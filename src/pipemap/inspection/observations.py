@@ -75,7 +75,7 @@ def locate_observation(res: LocatedResult, row: dict, settings=None) -> dict:
     ok = loc.ok
     c, k = loc.chainage[ok], loc.clock_deg[ok]
     seg = res.route.segments[int(loc.segment[0])]
-    nodes = _nodes_around(res, seg.chainage_start, seg.chainage_end)
+    nodes = res.route.nodes_around(int(loc.segment[0]))
     out.update(section=seg.name, from_node=nodes[0], to_node=nodes[1],
                chainage_m=f"{(c.min() if box else c[0]):.3f}", chainage_to_m=f"{c.max():.3f}" if box else "",
                sigma_chainage_m=f"{loc.sigma_chainage[0]:.4f}", sigma_clock_deg=f"{loc.sigma_clock_deg[0]:.2f}")
@@ -87,13 +87,6 @@ def locate_observation(res: LocatedResult, row: dict, settings=None) -> dict:
     out.update(x=f"{loc.points[0, 0]:.4f}", y=f"{loc.points[0, 1]:.4f}", z=f"{loc.points[0, 2]:.4f}")
     out.update(_image_ref(res, seg.name, float(loc.chainage[0]), float(loc.clock_deg[0])))
     return out
-
-
-def _nodes_around(res: LocatedResult, c0: float, c1: float) -> tuple[str, str]:
-    """The junctions (or `start` / `end`) at either end of the route stretch c0..c1."""
-    before = [j for j, _, c in res.route.nodes if c <= c0 + 1e-6]
-    after = [j for j, _, c in res.route.nodes if c >= c1 - 1e-6]
-    return (before[-1] if before else "start"), (after[0] if after else "end")
 
 
 def _image_ref(res: LocatedResult, section: str, chainage: float, clock: float) -> dict:

@@ -23,6 +23,7 @@ from pipemap.output import atomic_write_text
 FORMAT = "pipemap-route/1"
 TWO_PI = 2 * np.pi
 SIGHT_RADII = 10.0  # how far along the pipe from the camera a located wall point may lie
+NODE_TOLERANCE_M = 1e-3  # route.json keeps junction chainage to 0.1 mm, segment ends to 1 um
 PASS_TOLERANCE_RADII = 1.0  # where the route passes a place twice, the passes that fit this well compete
 
 
@@ -130,14 +131,19 @@ class Route:
     def to_route(self, points, wall: bool = True, near_chainage=None, segment=None):
         """(chainage m, clock deg in [0, 360), radial distance m, segment index) of world points (n, 3).
 
+        A wall point's coordinates are those along the pipe whose wall it lies on: where that is known (the wall
+        piece a ray met), pass its segment as `segment` (-1 where unknown), so that a point in a tee's stub, on
+        the through pipe's wall beyond the route's turn, gets that pipe's chainage and clock. Otherwise:
+
         Each point belongs to the segment it lies nearest inside: beyond its ends counts as distance, and
         for wall points (`wall`) so does the distance of the radial offset from the radius. The route's
         first and last segments reach on past its ends. Where the route passes a place twice (a loop),
-        `near_chainage` (n,) (the camera's) leaves out passes out of its sight; `segment` (n,) forces the segment."""
+        `near_chainage` (n,) (the camera's) leaves out passes out of its sight."""
         chain, clock_all, rho_all, cost = self._candidates(points, wall)
         n = chain.shape[1]
-        if segment is not None:
-            best = np.broadcast_to(np.asarray(segment, int), (n,))
+        forced = None if segment is None else np.broadcast_to(np.asarray(segment, int), (n,))
+        if forced is not None and (forced >= 0).all():
+            best = forced
         elif near_chainage is not None:
             # A camera sees the wall within a few radii along the pipe: passes farther from its own chainage
             # than SIGHT_RADII are no candidates (unless nothing else is); of the rest the best fit wins.
@@ -146,6 +152,8 @@ class Route:
             best = np.argmin(np.where(np.isfinite(near).any(axis=0), near, cost), axis=0)
         else:
             best = np.argmin(cost, axis=0)
+        if forced is not None:
+            best = np.where(forced >= 0, forced, best)
         cols = np.arange(n)
         return chain[best, cols], np.degrees(clock_all[best, cols]), rho_all[best, cols], best
 
@@ -177,6 +185,18 @@ class Route:
             out[i] = prev = chain[j, i]
         return out
 
+    def segments_named(self, names, near_chainage) -> np.ndarray:
+        """Index (n,) of the segment with each name (-1: none); where the route passes one twice, the pass
+        whose chainage is nearest `near_chainage`."""
+        names = np.atleast_1d(np.asarray(names, dtype=object))
+        near = np.broadcast_to(np.asarray(near_chainage, float), names.shape)
+        out = np.full(len(names), -1)
+        for i, (name, c) in enumerate(zip(names, near)):
+            cand = [k for k, seg in enumerate(self.segments) if seg.name == name]
+            if cand:
+                out[i] = min(cand, key=lambda k: _gap(self.segments[k], c))
+        return out
+
     def segment_at(self, chainage) -> np.ndarray:
         """Index of the segment holding each chainage (the first or last beyond the route's ends)."""
         starts = np.array([seg.chainage_start for seg in self.segments])
@@ -196,6 +216,16 @@ class Route:
             e_up, e_cw = seg.clock_frame(t)
             out[m] = axis + rho[m, None] * (np.cos(clock[m])[:, None] * e_up + np.sin(clock[m])[:, None] * e_cw)
         return out
+
+    def nodes_around(self, index: int) -> tuple[str, str]:
+        """(from node, to node) of segment `index`: the junctions (or `start` / `end`) either side of a line; an
+        elbow's arc lies inside the elbow, so both are the elbow's id."""
+        seg = self.segments[index]
+        if seg.kind == "arc":
+            return seg.name, seg.name
+        before = [j for j, _, c in self.nodes if c <= seg.chainage_start + NODE_TOLERANCE_M]
+        after = [j for j, _, c in self.nodes if c >= seg.chainage_end - NODE_TOLERANCE_M]
+        return (before[-1] if before else "start"), (after[0] if after else "end")
 
     def to_dict(self) -> dict:
         return {"format": FORMAT, "radius_m": self.radius, "length_m": round(self.length, 6),
@@ -243,6 +273,10 @@ def read_route(path: Path) -> Route:
     if not isinstance(data, dict):
         raise PipemapError("expected a JSON object", path)
     return Route.from_dict(data, str(path))
+
+
+def _gap(seg: RouteSegment, chainage: float) -> float:
+    return max(seg.chainage_start - chainage, chainage - seg.chainage_end, 0.0)
 
 
 def _unit(v) -> np.ndarray:

@@ -118,11 +118,14 @@ def place_observation(obs: dict, walls: list[UnrolledWall]) -> dict | None:
     """Where an observation's marker goes: {wall, col, row, col2, row2} (col2, row2: the far corner of a
     stretch or a clock span; equal to col, row for a point), or None when it lies on no unrolled wall. Its
     wall point (x, y, z) picks the wall; without one, its section and chainage do, where the walls carry
-    chainage."""
+    chainage. On a wall with chainage the marker starts at chainage_m and clock_from_deg."""
     start = _start(obs, walls)
     if start is None:
         return None
     wall, col, row = start
+    if wall.chainage0_m is not None and obs.get("chainage_m") is not None and obs.get("clock_from_deg") is not None:
+        # x, y, z of a box is its centre; its chainage and clock spans start at chainage_m and clock_from_deg
+        col, row = float(wall.column_of_chainage(obs["chainage_m"])), float(wall.row_of_clock(obs["clock_from_deg"]))
     col2, row2 = col, row
     if obs.get("chainage_to_m") is not None and obs.get("chainage_m") is not None:
         col2 = col + (obs["chainage_to_m"] - obs["chainage_m"]) / wall.along_per_px
