@@ -52,7 +52,7 @@ from pipemap.frontend.usable import UsableMask, usable_mask
 from pipemap.geometry.bend import OFFSET_SIGMA_M
 from pipemap.inspection.network_route import network_route
 from pipemap.inspection.route import Route, frame_chainage, write_route
-from pipemap.mapping import WallPiece, write_maps
+from pipemap.mapping import piece_from_dict, with_elbows, write_maps
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.quality import FrameStats, RunVerdict, network_verdict, require_mappable
 from pipemap.results import run_record, write_run_json
@@ -233,7 +233,8 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
                           [dict(j.to_dict(), first_keyframe=j.first, last_keyframe=j.last) for j in junctions],
                           poses, dataset.radius_m, settings.route.up)
     if axis_route is not None:
-        pipe_map.wall_pieces = wall_pieces(pipe_map.sections, junctions, axis_route.segments[0].up)
+        pipe_map.wall_pieces = with_elbows(wall_pieces(pipe_map.sections, junctions, axis_route.segments[0].up),
+                                           axis_route)
     route = float(np.sum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))) if len(poses) else 0.0
     quality = network_verdict(result.sections, result.windows, vo.keyframes, poses, pipe_map.sections, junctions,
                               joins, revisit, dataset.radius_m, settings.quality, route)
@@ -333,7 +334,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
         if settings.appearance.enabled and net.wall_pieces:
             stage("appearance")
             maps = write_maps(tmp, dataset, net.straight.indices, net.map.poses,
-                              [WallPiece.from_dict(d) for d in net.wall_pieces], settings,
+                              [piece_from_dict(d) for d in net.wall_pieces], settings,
                               usable=None if front.mask is None else front.mask.usable, route=net.route)
         stage("writing")
         seconds = dict(front.seconds)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipemap.geometry.torus import ray_torus
+from pipemap.geometry.torus import TorusPiece
 from pipemap.inspection.route import Route
 
 OPEN_END_RADII = 10.0  # how far the first and last pieces reach past the route's ends
@@ -36,22 +36,15 @@ class Tube:
         return d / n, n
 
 
-@dataclass(frozen=True)
-class Bend:
-    """An elbow's solid torus piece: centre, unit normal (the arc turns anticlockwise about it), e1 (from the
-    centre to the arc's start), bend radius, angle turned and tube radius."""
-
-    centre: np.ndarray
-    normal: np.ndarray
-    e1: np.ndarray
-    bend_radius: float
-    angle: float
-    radius: float
+# An elbow's solid torus piece: centre, unit normal (the arc turns anticlockwise about it), e1 (from the centre
+# to the arc's start), bend radius, angle turned and tube radius.
+Bend = TorusPiece
 
 
 def wall_shapes(pieces: list[dict], route: Route) -> tuple[list[Tube], list[Bend]]:
     """The tubes of run.json `wall_pieces` (the first and last opened past the route's ends) and the bends
-    of the route's arcs."""
+    of the route's arcs (the elbows' own wall pieces in `pieces` are those arcs)."""
+    pieces = [p for p in pieces if p.get("kind", "line") == "line"]
     tubes = []
     for k, p in enumerate(pieces):
         a, b = np.asarray(p["start"], float), np.asarray(p["end"], float)
@@ -81,24 +74,6 @@ def _tube_exit(tube: Tube, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return np.where(ok, t, np.inf)
 
 
-def _bend_exit(bend: Bend, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Distance (n,) to where each ray leaves the torus piece's wall within its angle (inf: nowhere ahead)."""
-    e1, e3 = bend.e1, bend.normal
-    e2 = np.cross(e3, e1)
-    frame = np.stack([e1, e2, e3])  # rows: the torus frame's axes
-    o = frame @ (origin - bend.centre) / bend.bend_radius
-    d = dirs @ frame.T
-    roots = ray_torus(o, d.T, bend.radius / bend.bend_radius) * bend.bend_radius  # (n, 4) ascending, NaN absent
-    best = np.full(len(dirs), np.inf)
-    for k in (1, 3):  # leaving the tube: the second root of each pair
-        t = roots[:, k]
-        p = o + (t / bend.bend_radius)[:, None] * d
-        ang = np.mod(np.arctan2(p[:, 1], p[:, 0]), 2 * np.pi)
-        ok = np.isfinite(t) & (t > 0) & (ang <= bend.angle)
-        best = np.where(ok & (t < best), t, best)
-    return best
-
-
 def _inside(points: np.ndarray, tubes: list[Tube], bends: list[Bend]) -> np.ndarray:
     """(n, shapes) whether each point lies deeper than INSIDE_MARGIN_M inside each tube, then each bend."""
     cols = []
@@ -108,13 +83,7 @@ def _inside(points: np.ndarray, tubes: list[Tube], bends: list[Bend]) -> np.ndar
         h = q @ u
         rho = np.linalg.norm(q - h[:, None] * u, axis=1)
         cols.append((h >= 0) & (h <= length) & (rho < tube.radius - INSIDE_MARGIN_M))
-    for bend in bends:
-        q = points - bend.centre
-        z = q @ bend.normal
-        flat = q - z[:, None] * bend.normal
-        s = np.linalg.norm(flat, axis=1)
-        ang = np.mod(np.arctan2(flat @ np.cross(bend.normal, bend.e1), flat @ bend.e1), 2 * np.pi)
-        cols.append((ang <= bend.angle) & (np.hypot(s - bend.bend_radius, z) < bend.radius - INSIDE_MARGIN_M))
+    cols += [bend.contains(points, INSIDE_MARGIN_M) for bend in bends]
     return np.stack(cols, axis=1) if cols else np.zeros((len(points), 0), bool)
 
 
@@ -122,7 +91,7 @@ def cast_to_wall(origin, dirs, tubes: list[Tube], bends: list[Bend]) -> tuple[np
     """World points (n, 3) where rays from `origin` along unit `dirs` (n, 3) meet the wall, and whether they do."""
     origin = np.asarray(origin, float)
     dirs = np.atleast_2d(np.asarray(dirs, float))
-    shapes = [(_tube_exit, s) for s in tubes] + [(_bend_exit, s) for s in bends]
+    shapes = [(_tube_exit, s) for s in tubes] + [(Bend.wall_exit, s) for s in bends]
     if not shapes:
         return np.full((len(dirs), 3), np.nan), np.zeros(len(dirs), bool)
     t = np.stack([fn(shape, origin, dirs) for fn, shape in shapes], axis=1)  # (n, shapes)
