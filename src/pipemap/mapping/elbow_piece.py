@@ -22,6 +22,7 @@ import numpy as np
 from pipemap.errors import PipemapError
 from pipemap.geometry.torus import TorusPiece
 from pipemap.inspection.route import RouteSegment
+from pipemap.mapping.wall import WallPiece, three_vectors
 
 MAX_ARC_STEP_DEG = 5.0  # the axis polyline's step: its chord lies within r (1 - cos 2.5 deg) < 0.1 % r of the arc
 
@@ -46,15 +47,7 @@ class ElbowPiece:
 
     def __post_init__(self):
         where = f"wall piece {self.name!r}"
-        vals = {}
-        for key in ("start", "centre", "normal", "up"):
-            try:
-                v = np.asarray(getattr(self, key), float).reshape(-1)
-            except (TypeError, ValueError):
-                v = np.zeros(0)
-            if v.shape != (3,) or not np.all(np.isfinite(v)):
-                raise PipemapError(f"{key} must be 3 finite numbers", where)
-            vals[key] = v
+        vals = three_vectors(self, ("start", "centre", "normal", "up"), where)
         try:
             angle, r = float(self.angle_deg), float(self.radius)
         except (TypeError, ValueError):
@@ -184,8 +177,6 @@ class ElbowPiece:
 def piece_from_dict(d: dict, where: str = "wall piece"):
     """A run.json `wall_pieces` record (or an unrolled sidecar's axis): a straight WallPiece, or an ElbowPiece
     for `kind: arc`."""
-    from pipemap.mapping.wall import WallPiece
-
     if isinstance(d, dict) and d.get("kind", "line") == "arc":
         return ElbowPiece.from_dict(d, where)
     if isinstance(d, dict) and d.get("kind", "line") != "line":

@@ -35,6 +35,20 @@ if TYPE_CHECKING:
 INSIDE_MARGIN_SPACINGS = 1.0
 
 
+def three_vectors(obj, keys, where: str) -> dict[str, np.ndarray]:
+    """obj's attributes `keys` as 3-vectors of floats; PipemapError naming the one that is not."""
+    vals = {}
+    for key in keys:
+        try:
+            v = np.asarray(getattr(obj, key), float).reshape(-1)
+        except (TypeError, ValueError):
+            v = np.zeros(0)
+        if v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise PipemapError(f"{key} must be 3 finite numbers", where)
+        vals[key] = v
+    return vals
+
+
 @dataclass(frozen=True)
 class WallPiece:
     """A straight piece of fitted pipe wall, in the trajectory's world frame.
@@ -61,15 +75,7 @@ class WallPiece:
 
     def __post_init__(self):
         where = f"wall piece {self.name!r}"
-        vals = {}
-        for key in ("start", "end", "up"):
-            try:
-                v = np.asarray(getattr(self, key), float).reshape(-1)
-            except (TypeError, ValueError):
-                v = np.zeros(0)
-            if v.shape != (3,) or not np.all(np.isfinite(v)):
-                raise PipemapError(f"{key} must be 3 finite numbers", where)
-            vals[key] = v
+        vals = three_vectors(self, ("start", "end", "up"), where)
         r = float(self.radius)
         if not (math.isfinite(r) and r > 0):
             raise PipemapError(f"radius must be a positive number of metres, got {self.radius!r}", where)
