@@ -52,7 +52,7 @@ from pipemap.frontend.usable import UsableMask, usable_mask
 from pipemap.geometry.bend import OFFSET_SIGMA_M
 from pipemap.inspection.network_route import network_route
 from pipemap.inspection.route import Route, frame_chainage, write_route
-from pipemap.mapping import WallPiece, write_maps
+from pipemap.mapping import WallPiece, piece_from_dict, with_elbows, write_maps
 from pipemap.mapping.deformation_stage import measure_deformation, write_deformation
 from pipemap.mapping.wall_depth import dense_profiles
 from pipemap.output import atomic_write_text, result_folder
@@ -235,7 +235,8 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
                           [dict(j.to_dict(), first_keyframe=j.first, last_keyframe=j.last) for j in junctions],
                           poses, dataset.radius_m, settings.route.up)
     if axis_route is not None:
-        pipe_map.wall_pieces = wall_pieces(pipe_map.sections, junctions, axis_route.segments[0].up)
+        pipe_map.wall_pieces = with_elbows(wall_pieces(pipe_map.sections, junctions, axis_route.segments[0].up),
+                                           axis_route)
     route = float(np.sum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))) if len(poses) else 0.0
     quality = network_verdict(result.sections, result.windows, vo.keyframes, poses, pipe_map.sections, junctions,
                               joins, revisit, dataset.radius_m, settings.quality, route)
@@ -336,7 +337,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
         if settings.appearance.enabled and net.wall_pieces:
             stage("appearance")
             maps = write_maps(tmp, dataset, net.straight.indices, net.map.poses,
-                              [WallPiece.from_dict(d) for d in net.wall_pieces], settings,
+                              [piece_from_dict(d) for d in net.wall_pieces], settings,
                               usable=None if front.mask is None else front.mask.usable, route=net.route)
         deformation = None
         if settings.deformation.enabled and net.wall_pieces:
@@ -348,8 +349,8 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
                                       lambda k: dataset.read(int(indices[k])).image, dataset.radius_m,
                                       settings.deformation)
 
-            rows, deformation = measure_deformation(net.map, [WallPiece.from_dict(d) for d in net.wall_pieces],
-                                                    dataset.radius_m, settings, dense)
+            straight = [WallPiece.from_dict(d) for d in net.wall_pieces if d.get("kind", "line") == "line"]
+            rows, deformation = measure_deformation(net.map, straight, dataset.radius_m, settings, dense)
             write_deformation(tmp, rows, dataset.radius_m)
         stage("writing")
         seconds = dict(front.seconds)

@@ -173,7 +173,7 @@ def test_run_dense_result_folder_and_distance(six_inch, tmp_path):
     assert run["method"] == "dense-hybrid" and run["frames"] == n and run["settings"]["dense"]["scale"] == 0.5
     assert run["settings"]["dense"]["camera_offset_m"] == OFFSET_6IN and run["frames_per_second"] > 0
     side = json.loads((out / "unrolled" / "dense_000.json").read_text())
-    assert side["format"] == "pipemap-unrolled/2" and side["frames_stitched"] > 1
+    assert side["format"] == "pipemap-unrolled/3" and side["frames_stitched"] > 1
     png = cv2.imread(str(out / "unrolled" / "dense_000.png"), cv2.IMREAD_GRAYSCALE)
     assert png is not None and png.shape == (side["height_px"], side["width_px"])
     # the wall unrolled spans the distance travelled and a frame's footprint more

@@ -44,7 +44,7 @@ def test_unrolled_image_matches_the_painted_wall(six_inch_sparse, six_inch_spars
     side = json.loads((out / "unrolled" / "sparse_000.json").read_text())
     png = cv2.imread(str(out / "unrolled" / side["image"]), cv2.IMREAD_GRAYSCALE)
     assert png is not None and png.shape == (side["height_px"], side["width_px"])
-    assert side["format"] == "pipemap-unrolled/2" and side["phi_per_row_rad"] < 0  # seen from inside
+    assert side["format"] == "pipemap-unrolled/3" and side["phi_per_row_rad"] < 0  # seen from inside
     mpp = side["metres_per_pixel"]
     assert 2e-4 < mpp < 1e-3  # about one camera pixel on the wall (0.42 mm at 320 px wide)
     # the image spans the run along the pipe and the band the camera sees around it
@@ -71,7 +71,7 @@ def _matches_the_painted_wall(dataset, out: Path, stem: str, max_offset_px: int)
     side = json.loads((out / "unrolled" / f"{stem}.json").read_text())
     png = cv2.imread(str(out / "unrolled" / side["image"]), cv2.IMREAD_GRAYSCALE)
     assert png is not None and png.shape == (side["height_px"], side["width_px"])
-    assert side["format"] == "pipemap-unrolled/2" and side["phi_per_row_rad"] < 0  # seen from inside
+    assert side["format"] == "pipemap-unrolled/3" and side["phi_per_row_rad"] < 0  # seen from inside
     truth = _truth_texture(dataset, side, png.shape)
     m = max_offset_px
     r0, r1 = png.shape[0] // 4, 3 * png.shape[0] // 4

@@ -8,16 +8,18 @@ figures answer it, both as distances to the wall of the true network (ground_tru
   accumulated along the run shows here as wall error, though the map may be right locally.
 - **local**: each wall piece S<k> of run.json "wall_pieces" brought in by an alignment of its own
   straight section k's keyframes only (run.json "straight_sections"). This says whether the map
-  is right where it was built, whatever the drift before it. A straight section's camera centres
-  are nearly collinear, so positions alone leave the rotation about their line free, and the
-  camera rides off the pipe axis, so that free rotation would move the pipe axis. The section
+  is right where it was built, whatever the drift before it. An elbow's wall piece (kind `arc`)
+  is brought in by the keyframes of its junction pass (run.json "junction_passes"), those that
+  see it. A straight section's camera centres are nearly collinear, so positions alone leave
+  the rotation about their line free, and the camera rides off the pipe axis,
+  so that free rotation would move the pipe axis. The section
   alignment therefore also matches each keyframe's orientation: besides the camera centre c it
   pairs the three points c + r * R_wc[:, i] (r the pipe radius, so an orientation error weighs
   as much as the wall shift it causes at the wall) and solves one rigid Umeyama problem. The
   estimated orientations' own errors therefore enter the local figure, weighted by that lever.
 
-A point is assigned to the piece whose axis (clamped to its ends) is nearest, in the result's
-own frame, before any alignment.
+A point is assigned to the piece whose axis (clamped to its ends; an elbow's arc) is nearest, in the
+result's own frame, before any alignment.
 
 Every segment's whole cylinder counts as wall, also where a branch's cylinder crosses the
 through pipe at a tee (the opening, where no wall is). A point there would read nearer the wall
@@ -55,6 +57,7 @@ class WallStats:
     points: int
     median_mm: float
     p90_mm: float
+    p95_mm: float
     max_mm: float
     within_2mm_pct: float
 
@@ -62,10 +65,11 @@ class WallStats:
     def of(cls, distances_m: np.ndarray) -> "WallStats":
         d = np.asarray(distances_m, float).ravel()
         if len(d) == 0:
-            return cls(0, np.nan, np.nan, np.nan, np.nan)
-        median, p90 = np.percentile(d, [50.0, 90.0])
+            return cls(0, np.nan, np.nan, np.nan, np.nan, np.nan)
+        median, p90, p95 = np.percentile(d, [50.0, 90.0, 95.0])
         within = 100.0 * np.count_nonzero(d <= WALL_TOLERANCE_M) / len(d)
-        return cls(len(d), 1000.0 * float(median), 1000.0 * float(p90), 1000.0 * float(d.max()), float(within))
+        return cls(len(d), 1000.0 * float(median), 1000.0 * float(p90), 1000.0 * float(p95), 1000.0 * float(d.max()),
+                   float(within))
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -177,13 +181,34 @@ def read_appearance_points(path: str | Path) -> np.ndarray:
 @dataclass(frozen=True)
 class _Piece:
     name: str
-    section: int
+    section: int  # the straight section S<k> (-1: none)
     start: np.ndarray
     end: np.ndarray
+    arc: tuple | None = None  # an elbow's (centre, unit normal, bend radius, angle rad): its axis turns from start
+    keyframes: tuple[int, int] | None = None  # an elbow's junction pass: the keyframes that align it
+
+    def axis_distance2(self, points: np.ndarray) -> np.ndarray:
+        """(n,) squared distance of points to the axis, clamped to its ends (an elbow: to its arc)."""
+        if self.arc is None:
+            h, q2 = _axial_and_square(points, self.start[None], ((self.end - self.start) / self.length)[None])
+            f = np.clip(h[:, 0], 0.0, self.length)
+            return q2[:, 0] - 2.0 * f * h[:, 0] + f * f
+        centre, normal, rho, angle = self.arc
+        e1 = (self.start - centre) / rho
+        q = np.asarray(points, float) - centre
+        x, y, z = q @ e1, q @ np.cross(normal, e1), q @ normal
+        a = np.arctan2(y, x)
+        a = np.clip(np.where(a < -0.5 * (2 * np.pi - angle), a + 2 * np.pi, a), 0.0, angle)
+        return (x - rho * np.cos(a)) ** 2 + (y - rho * np.sin(a)) ** 2 + z * z
+
+    @property
+    def length(self) -> float:
+        return max(float(np.linalg.norm(self.end - self.start)), 1e-12)
 
 
-def _read_pieces(run_json: Path) -> tuple[list[_Piece], dict[int, tuple[int, int]], str | None]:
-    """run.json's straight wall pieces and the keyframe range of each straight section, or a note."""
+def read_wall_pieces(run_json: Path) -> tuple[list[_Piece], dict[int, tuple[int, int]], str | None]:
+    """run.json's wall pieces (straight, and elbows with the keyframes of their junction pass) and the keyframe
+    range of each straight section, or a note."""
     try:
         run = json.loads(run_json.read_text())
     except FileNotFoundError:
@@ -199,19 +224,34 @@ def _read_pieces(run_json: Path) -> tuple[list[_Piece], dict[int, tuple[int, int
             sections[int(s["section"])] = (int(s["first_keyframe"]), int(s["last_keyframe"]))
         except (KeyError, TypeError, ValueError):
             continue
-    pieces = []
-    for item in items:
+    passes = {}
+    for j in run.get("junction_passes") or []:
         try:
-            name = str(item["name"])
-            section = int(name[1:]) if name[:1] == "S" and name[1:].isdigit() else -1
-            start, end = np.asarray(item["start"], float), np.asarray(item["end"], float)
+            passes.setdefault(str(j["id"]), (int(j["first_keyframe"]), int(j["last_keyframe"])))
         except (KeyError, TypeError, ValueError):
             continue
-        if start.shape == end.shape == (3,) and np.all(np.isfinite(start)) and np.all(np.isfinite(end)):
-            pieces.append(_Piece(name, section, start, end))
+    pieces = [p for p in (_piece(item, passes) for item in items) if p is not None]
     if not pieces:
         return [], {}, "run.json's wall_pieces have no valid start and end: the local appearance-wall figure is skipped"
     return pieces, sections, None
+
+
+def _piece(item, passes: dict[str, tuple[int, int]]) -> _Piece | None:
+    try:
+        name = str(item["name"])
+        section = int(name[1:]) if name[:1] == "S" and name[1:].isdigit() else -1
+        start, end = np.asarray(item["start"], float), np.asarray(item["end"], float)
+        arc = None
+        if item.get("kind") == "arc":
+            centre, normal = np.asarray(item["centre"], float), np.asarray(item["normal"], float)
+            arc = (centre, normal / np.linalg.norm(normal), float(np.linalg.norm(start - centre)),
+                   float(np.radians(float(item["angle_deg"]))))
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+    vectors = [start, end] + ([arc[0], arc[1]] if arc else [])
+    if not all(v.shape == (3,) and np.all(np.isfinite(v)) for v in vectors):
+        return None
+    return _Piece(name, section, start, end, arc, passes.get(name) if arc else None)
 
 
 # -- alignments -------------------------------------------------------------------------------
@@ -234,16 +274,12 @@ def _pose_points(traj: Trajectory, lever_m: float) -> np.ndarray:
 
 
 def nearest_piece(points: np.ndarray, pieces: list[_Piece]) -> np.ndarray:
-    """(N,) index of the piece whose axis segment is nearest each point."""
-    starts = np.array([x.start for x in pieces])
-    spans = np.array([x.end - x.start for x in pieces])
-    lengths = np.maximum(np.linalg.norm(spans, axis=1), 1e-12)
-    p = np.asarray(points).reshape(-1, 3)
+    """(N,) index of the piece whose axis (segment, or an elbow's arc) is nearest each point."""
+    p = np.asarray(points, float).reshape(-1, 3)
     out = np.empty(len(p), dtype=np.int64)
     for lo in range(0, len(p), CHUNK_POINTS):
-        h, q2 = _axial_and_square(p[lo:lo + CHUNK_POINTS], starts, spans / lengths[:, None])
-        f = np.clip(h, 0.0, lengths)
-        out[lo:lo + len(h)] = np.argmin(q2 - 2.0 * f * h + f * f, axis=1)
+        chunk = p[lo:lo + CHUNK_POINTS]
+        out[lo:lo + len(chunk)] = np.argmin(np.stack([x.axis_distance2(chunk) for x in pieces], axis=1), axis=1)
     return out
 
 
@@ -259,14 +295,14 @@ def appearance_wall(result_dir: str | Path, network: PipeNetwork, est: Trajector
     result_dir = Path(result_dir)
     points = read_appearance_points(result_dir / "appearance.ply")
     global_ = WallStats.of(wall_distance(_moved(points, alignment), network))
-    pieces, sections, note = _read_pieces(result_dir / "run.json")
+    pieces, sections, note = read_wall_pieces(result_dir / "run.json")
     if note is not None:
         return AppearanceWall(global_, None, (), (note,))
     rows, pooled, skipped = _piece_errors(points, pieces, sections, network, est, gt)
     notes = ()
     if skipped:
-        notes = (f"wall pieces {', '.join(skipped)} have no straight section with 2 keyframes in common with "
-                 "ground truth: left out of the local appearance-wall figure",)
+        notes = (f"wall pieces {', '.join(skipped)} have no straight section (an elbow: junction pass) with 2 "
+                 "keyframes in common with ground truth: left out of the local appearance-wall figure",)
     local = WallStats.of(np.concatenate(pooled)) if rows else None
     return AppearanceWall(global_, local, tuple(rows), notes)
 
@@ -276,7 +312,7 @@ def _piece_errors(points, pieces, sections, network, est, gt) -> tuple[list[Piec
     rows, pooled, skipped = [], [], []
     owner = nearest_piece(points, pieces)
     for i, piece in enumerate(pieces):
-        aligned = _piece_alignment(piece, sections, est, gt, network.radius_m)
+        aligned = piece_alignment(piece, sections, est, gt, network.radius_m)
         if aligned is None:
             skipped.append(piece.name)
             continue
@@ -292,15 +328,17 @@ def _moved(points: np.ndarray, alignment: Alignment) -> np.ndarray:
     return s * np.einsum("ij,nj->ni", R, np.asarray(points, float)) + t
 
 
-def _piece_alignment(piece: _Piece, sections: dict[int, tuple[int, int]], est: Trajectory, gt: Trajectory,
+def piece_alignment(piece: _Piece, sections: dict[int, tuple[int, int]], est: Trajectory, gt: Trajectory,
                      lever_m: float) -> tuple[Alignment, int] | None:
-    if piece.section not in sections:
+    span = piece.keyframes if piece.arc is not None else sections.get(piece.section)
+    if span is None:
         return None
-    a, b = sections[piece.section]
+    a, b = span
     if not 0 <= a <= b < len(est):
         return None
     return section_alignment(est.subset(np.arange(a, b + 1)), gt, lever_m)
 
 
-__all__ = ["AppearanceWall", "PieceWall", "WallStats", "appearance_wall", "nearest_piece", "read_appearance_points",
+__all__ = ["AppearanceWall", "PieceWall", "WallStats", "appearance_wall", "nearest_piece", "piece_alignment",
+           "read_appearance_points", "read_wall_pieces",
            "section_alignment", "wall_distance", "WALL_TOLERANCE_M", "END_TOLERANCE_M"]

@@ -15,7 +15,7 @@ def legs_and_joints(pieces: list[dict], sections: list[dict], passes: list[dict]
     pass whose keyframes lie after one leg's section and before the next one's; `gap` where there is none."""
     span = {f"S{s['section']}": (int(s["first_keyframe"]), int(s["last_keyframe"])) for s in sections}
     legs = [Leg(str(p["name"]), np.asarray(p["start"], float), np.asarray(p["end"], float))
-            for p in pieces if p.get("unroll", True)]
+            for p in pieces if p.get("unroll", True) and p.get("kind", "line") == "line"]
     joints = []
     for a, b in zip(legs, legs[1:]):
         lo, hi = span.get(a.name, (None, None))[1], span.get(b.name, (None, None))[0]

@@ -66,6 +66,7 @@ def wall_shapes(pieces: list[dict], route: Route) -> tuple[list[Tube], list[Bend
     """The tubes of run.json `wall_pieces` (the first and last reaching on past the route's ends, through pipes
     into the stubs of tees) and the bends of the route's arcs."""
     segs = {s.name: s for s in route.segments if s.kind == "line"}
+    pieces = [p for p in pieces if p.get("kind", "line") == "line"]  # an elbow's own piece is its route arc
     tubes = []
     for k, p in enumerate(pieces):
         start, end, r = np.asarray(p["start"], float), np.asarray(p["end"], float), float(p["radius"])

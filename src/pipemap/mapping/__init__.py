@@ -8,10 +8,11 @@ from pipemap.mapping.appearance import (
     write_appearance_ply,
     write_maps,
 )
+from pipemap.mapping.elbow_piece import ElbowPiece, piece_from_dict, with_elbows
 from pipemap.mapping.pieces import pieces_from_result
 from pipemap.mapping.unrolled import read_unrolled, write_unrolled
 from pipemap.mapping.wall import WallGrid, WallPiece, sample_wall, wall_grid
 
-__all__ = ["AppearanceMap", "PieceMap", "WallGrid", "WallPiece", "build_appearance", "pieces_from_result",
-           "read_appearance_ply", "read_unrolled", "sample_wall", "wall_grid", "write_appearance_ply", "write_maps",
-           "write_unrolled"]
+__all__ = ["AppearanceMap", "ElbowPiece", "PieceMap", "WallGrid", "WallPiece", "build_appearance", "piece_from_dict",
+           "pieces_from_result", "read_appearance_ply", "read_unrolled", "sample_wall", "wall_grid",
+           "write_appearance_ply", "write_maps", "write_unrolled", "with_elbows"]

@@ -41,7 +41,6 @@ from pipemap.mapping.wall import (
     in_line_of_sight,
     inside_piece,
     opening_mask,
-    point_segment_distance,
     wall_grid,
 )
 from pipemap.mapping.unrolled import write_unrolled
@@ -219,6 +218,8 @@ class _KeyframeSampler:
         optical axis is at least theta - alpha off the pipe axis (alpha: optical axis to pipe
         axis), and at most r + d across it (d: camera to axis), so |dh| <= (r + d) / tan(theta - alpha)."""
         p = grid.piece
+        if p.kind == "arc":
+            return self._arc_rows(grid, c)
         u = p.axis
         z = R[:, 2]
         q = c - p.start
@@ -238,6 +239,13 @@ class _KeyframeSampler:
         i0, i1 = np.searchsorted(grid.h, [lo, hi])
         return slice(int(i0), int(i1))
 
+    def _arc_rows(self, grid: WallGrid, c: np.ndarray) -> slice:
+        """An elbow's grid rows whose wall can lie within the reach: those whose axis point is within the
+        reach plus the radius of the camera."""
+        axis, _ = grid.piece.axis_at(grid.h)
+        near = np.flatnonzero(np.linalg.norm(axis - c, axis=1) <= self.reach + grid.piece.radius + self.spacing)
+        return slice(int(near[0]), int(near[-1]) + 1) if len(near) else slice(0, 0)
+
     def _weight(self, theta: np.ndarray, dist2: np.ndarray) -> np.ndarray:
         """Smoothstep from 0 to 1 over the taper inside both colatitude limits and over the last
         REACH_TAPER of the reach (never exactly 0 inside: a point seen once keeps its sample)."""
@@ -249,7 +257,7 @@ class _KeyframeSampler:
 
     def accumulate(self, pm: PieceMap, image: np.ndarray, R: np.ndarray, c: np.ndarray) -> None:
         p = pm.piece
-        if point_segment_distance(c, p.start, p.end) - p.radius > self.reach:
+        if p.axis_distance(c) - p.radius > self.reach:
             return
         rows = self._rows(pm.grid, R, c)
         if rows.stop <= rows.start:
@@ -266,9 +274,10 @@ class _KeyframeSampler:
             return
         where = np.nonzero(ok)
         uv, valid = self.camera.project(X[where])
-        if not inside_piece(c, p, 0.0, self.spacing):
-            # the camera is in another piece: the point must be in sight through an opening
-            near = [q for q in self.pieces if point_segment_distance(c, q.start, q.end) < self.reach + q.radius]
+        if not (p.wall_in_sight_from_inside and inside_piece(c, p, 0.0, self.spacing)):
+            # the camera is in another piece (or in a bend, whose inner wall can hide its far side): the point must
+            # be in sight through the pipes
+            near = [q for q in self.pieces if q.axis_distance(c) < self.reach + q.radius]
             valid &= in_line_of_sight(c, P[where], near, self.spacing)
         if self.usable is not None and valid.any():
             px = np.clip(np.rint(uv).astype(np.int64), 0, [self.usable.shape[1] - 1, self.usable.shape[0] - 1])

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from pipemap.errors import PipemapError
+from pipemap.mapping.elbow_piece import ElbowPiece, piece_from_dict
 from pipemap.mapping.wall import WallPiece
 from pipemap.trajectory import read_tum
 
@@ -32,9 +33,9 @@ def read_run(result_dir: Path) -> dict:
     return data
 
 
-def pieces_from_result(result_dir: str | Path) -> list[WallPiece]:
+def pieces_from_result(result_dir: str | Path) -> list[WallPiece | ElbowPiece]:
     """The result's wall pieces: run.json "wall_pieces" (a list of {name, start, end, radius, up,
-    unroll}); without it, one piece per fitted straight section. [] when neither is there."""
+    unroll}, elbows with kind "arc"); without it, one piece per fitted straight section. [] when neither is there."""
     result_dir = Path(result_dir)
     run = read_run(result_dir)
     where = result_dir / "run.json"
@@ -42,7 +43,7 @@ def pieces_from_result(result_dir: str | Path) -> list[WallPiece]:
         items = run["wall_pieces"]
         if not isinstance(items, list):
             raise PipemapError("wall_pieces must be a list", where)
-        return [WallPiece.from_dict(d, f"{where}: wall_pieces[{i}]") for i, d in enumerate(items)]
+        return [piece_from_dict(d, f"{where}: wall_pieces[{i}]") for i, d in enumerate(items)]
     sections = run.get("straight_sections") or []
     traj_path = result_dir / "trajectory.tum"
     if not sections or not traj_path.exists():

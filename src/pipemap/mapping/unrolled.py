@@ -1,6 +1,7 @@
-"""unrolled/<name>.png: the wall of each straight piece unrolled to (h, r*phi), with a JSON beside it.
+"""unrolled/<name>.png: the wall of each piece unrolled to (h, r*phi), with a JSON beside it.
 
-Layout: columns run along the axis (h from start towards end), rows run around the wall
+Layout: columns run along the axis (h from start towards end; along an elbow's arc, the chainage along
+its bent axis), rows run around the wall
 starting at 12 o'clock and going anticlockwise when looking from start to end. That is the
 wall as seen from inside the pipe, so lettering on it reads unmirrored; in the wall
 coordinates of wall.py (phi clockwise) row k is phi = -k * 2 pi / rows. The JSON gives the
@@ -24,7 +25,7 @@ from pipemap.output import atomic_write_bytes, atomic_write_text
 if TYPE_CHECKING:
     from pipemap.mapping.appearance import AppearanceMap, PieceMap
 
-FORMAT = "pipemap-unrolled/2"
+FORMAT = "pipemap-unrolled/3"
 UNSEEN = 0
 
 
@@ -51,22 +52,24 @@ def unrolled_image(pm: "PieceMap", px_m: float, chainage_of_start: float = 0.0) 
     img = np.full((rows, cols), UNSEEN, np.uint8)
     img[ok] = np.clip(np.rint(mean[ok]), 1, 255).astype(np.uint8)
     along = piece.length / (cols - 1)
+    record = piece.to_dict()
+    arc = {k: record[k] for k in ("centre", "normal", "bend_radius", "angle_deg")} if piece.kind == "arc" else None
     meta = unrolled_sidecar(piece.name, rows, cols, start=piece.start, end=piece.end, radius=piece.radius,
                             up=piece.up, px_m=px_m, along_m=along, phi_of_row_0=0.0,
                             phi_per_row=-2 * np.pi / rows, seen_fraction=float(ok.mean()),
-                            bend=piece.to_dict()["bend"] if piece.bend_h is not None else None,
-                            chainage_of_column_0=chainage_of_start)
+                            bend=record.get("bend"), chainage_of_column_0=chainage_of_start, arc=arc)
     return img, meta
 
 
 def unrolled_sidecar(piece: str, rows: int, cols: int, *, start, end, radius: float, up, px_m: float, along_m: float,
                      phi_of_row_0: float, phi_per_row: float, seen_fraction: float, bend: dict | None = None,
-                     chainage_of_column_0: float = 0.0) -> dict:
-    """The sidecar every method writes beside an unrolled image (`pipemap-unrolled/2`, docs/formats.md):
+                     chainage_of_column_0: float = 0.0, arc: dict | None = None) -> dict:
+    """The sidecar every method writes beside an unrolled image (`pipemap-unrolled/3`, docs/formats.md):
     columns run along the axis from `start` towards `end` (world frame of trajectory.tum), rows around the
     wall from `phi_of_row_0` in steps of `phi_per_row` (negative: anticlockwise looking from start to end,
     the wall as seen from inside), phi = 0 at `up` (12 o'clock); column 0 is at `chainage_of_column_0` on the
-    route (route.json)."""
+    route (route.json). `arc` ({centre, normal, bend_radius, angle_deg}): the axis is an elbow's arc from
+    `start`, turning anticlockwise about `normal` (axis.kind `arc`; else `line`)."""
     return {
         "format": FORMAT,
         "piece": piece,
@@ -75,12 +78,13 @@ def unrolled_sidecar(piece: str, rows: int, cols: int, *, start, end, radius: fl
         "metres_per_pixel": float(px_m),
         "metres_per_pixel_along": float(along_m),
         "metres_per_pixel_around": float(abs(phi_per_row) * radius),
-        "axis": {"start": [float(v) for v in start], "end": [float(v) for v in end], "radius": float(radius),
-                 "up": [float(v) for v in up], **({"bend": bend} if bend is not None else {})},
+        "axis": {"kind": "line" if arc is None else "arc", "start": [float(v) for v in start],
+                 "end": [float(v) for v in end], "radius": float(radius), "up": [float(v) for v in up],
+                 **({"bend": bend} if bend is not None else {}), **(arc or {})},
         "frame": "world frame of trajectory.tum",
         "h_of_column_0_m": 0.0,
         "columns": "column c is at h = h_of_column_0_m + c * metres_per_pixel_along, metres along the axis from "
-                   "start towards end",
+                   "start towards end (along an arc: along the bent axis)",
         "chainage_of_column_0_m": round(float(chainage_of_column_0), 6),
         "chainage": "column c is at chainage chainage_of_column_0_m + c * metres_per_pixel_along (route.json)",
         "clock_of_row_0_deg": float(np.degrees(phi_of_row_0) % 360.0),
@@ -93,7 +97,9 @@ def unrolled_sidecar(piece: str, rows: int, cols: int, *, start, end, radius: fl
         "phi_convention": "phi = 0 at 12 o'clock (axis.up across the axis), increasing clockwise looking from start "
                           "to end; the wall point is start + h u + b(h) + radius (cos(phi) e_up + sin(phi) "
                           "(u x e_up)), b(h) the axis's offset across u: linear between axis.bend.offset at "
-                          "axis.bend.h, constant beyond its ends, zero without axis.bend",
+                          "axis.bend.h, constant beyond its ends, zero without axis.bend; on an arc u and e_up "
+                          "follow the local tangent (e_up: up across it) and start + h u is the arc's point at "
+                          "h / bend_radius radians from start",
         "unseen_value": UNSEEN,
         "seen_fraction": float(seen_fraction),
     }

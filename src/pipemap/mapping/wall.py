@@ -9,22 +9,44 @@ A wall point is start + h u + b(h) + r (cos(phi) e_up + sin(phi) e_cw) with u th
 the 12 o'clock direction, e_cw = u x e_up (3 o'clock) and b(h) the bend: the axis's offset across
 u (a few millimetres where the run sags or kinks at a joint), linear between knots and constant
 beyond the end knots (`pipemap.geometry.bend`); zero for a straight piece.
+
+An elbow's wall (elbow_piece.py) has the same wall coordinates along its arc and the same methods
+(wall_points, wall_coordinates, contains, exit, axis_distance, axis_polyline), so the grids, the
+opening masks and the line-of-sight march here take either kind of piece.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from pipemap.errors import PipemapError
 from pipemap.geometry.bend import AxisKnots
 
+if TYPE_CHECKING:
+    from pipemap.mapping.elbow_piece import ElbowPiece
+
 # A grid point counts as inside another piece (a tee's branch opening) when it lies deeper than
 # this inside that piece's solid cylinder, in units of the grid spacing: one spacing absorbs the
 # sub-millimetre kinks where pieces of a sagging run meet.
 INSIDE_MARGIN_SPACINGS = 1.0
+
+
+def three_vectors(obj, keys, where: str) -> dict[str, np.ndarray]:
+    """obj's attributes `keys` as 3-vectors of floats; PipemapError naming the one that is not."""
+    vals = {}
+    for key in keys:
+        try:
+            v = np.asarray(getattr(obj, key), float).reshape(-1)
+        except (TypeError, ValueError):
+            v = np.zeros(0)
+        if v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise PipemapError(f"{key} must be 3 finite numbers", where)
+        vals[key] = v
+    return vals
 
 
 @dataclass(frozen=True)
@@ -47,17 +69,13 @@ class WallPiece:
     bend_h: np.ndarray | None = None
     bend_offsets: np.ndarray | None = None
 
+    kind: ClassVar[str] = "line"
+    wall_in_sight_from_inside: ClassVar[bool] = True  # a straight tube's wall never hides itself
+    along_stretch: ClassVar[float] = 1.0
+
     def __post_init__(self):
         where = f"wall piece {self.name!r}"
-        vals = {}
-        for key in ("start", "end", "up"):
-            try:
-                v = np.asarray(getattr(self, key), float).reshape(-1)
-            except (TypeError, ValueError):
-                v = np.zeros(0)
-            if v.shape != (3,) or not np.all(np.isfinite(v)):
-                raise PipemapError(f"{key} must be 3 finite numbers", where)
-            vals[key] = v
+        vals = three_vectors(self, ("start", "end", "up"), where)
         r = float(self.radius)
         if not (math.isfinite(r) and r > 0):
             raise PipemapError(f"radius must be a positive number of metres, got {self.radius!r}", where)
@@ -115,6 +133,56 @@ class WallPiece:
             return np.zeros(h.shape + (3,))
         return AxisKnots(self.bend_h).at(self.bend_offsets, h)
 
+    def wall_points(self, h, phi) -> np.ndarray:
+        """World points (len(h), len(phi), 3) of the wall at h (rows) and phi (columns)."""
+        h, phi = np.asarray(h, float), np.asarray(phi, float)
+        _, e_up, e_cw = self.frame()
+        ring = np.cos(phi)[:, None] * e_up + np.sin(phi)[:, None] * e_cw
+        axis_pts = self.start + h[:, None] * self.axis + self.axis_offset(h)
+        return axis_pts[:, None, :] + self.radius * ring[None, :, :]
+
+    def contains(self, points, margin: float = 0.0, h_margin: float = 0.0) -> np.ndarray:
+        """Points (..., 3) inside the solid cylinder by more than margin (radially), between its ends widened by
+        h_margin."""
+        u = self.axis
+        q = np.asarray(points, float) - self.start
+        h = q @ u
+        radial2 = np.einsum("...i,...i->...", q, q) - h * h
+        r_in = max(self.radius - margin, 0.0)
+        return (h >= -h_margin) & (h <= self.length + h_margin) & (radial2 < r_in * r_in)
+
+    def exit(self, X: np.ndarray, D: np.ndarray, s: np.ndarray, tol_m: float) -> np.ndarray:
+        """Line parameter where c + s D, now at X (inside or not), leaves the solid widened by tol_m; s where X
+        is not inside it."""
+        u = self.axis
+        r = self.radius + tol_m
+        q = X - self.start
+        h = q @ u
+        w = q - h[:, None] * u
+        Du = D @ u
+        v = D - Du[:, None] * u
+        C = np.einsum("ij,ij->i", w, w) - r * r
+        inside = (C <= 0) & (h >= -tol_m) & (h <= self.length + tol_m)
+        A = np.einsum("ij,ij->i", v, v)
+        B = np.einsum("ij,ij->i", w, v)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tau_cyl = np.where(A > 1e-18, (-B + np.sqrt(np.maximum(B * B - A * C, 0.0))) / A, np.inf)
+            tau_end = np.where(Du > 0, (self.length + tol_m - h) / Du, np.where(Du < 0, (-tol_m - h) / Du, np.inf))
+        tau = np.maximum(np.minimum(tau_cyl, tau_end), 0.0)
+        return np.where(inside, s + tau, s)
+
+    def holds_segment(self, X: np.ndarray, P: np.ndarray, tol: float) -> np.ndarray:
+        """(n,) whether the segments X -> P lie inside the solid widened by tol: both ends in it (it is convex, the
+        bend's millimetres aside)."""
+        return self.contains(X, -tol, tol) & self.contains(P, -tol, tol)
+
+    def axis_distance(self, point) -> float:
+        """Distance from a point to the axis segment."""
+        return point_segment_distance(np.asarray(point, float), self.start, self.end)
+
+    def axis_polyline(self) -> np.ndarray:
+        return np.stack([self.start, self.end])
+
     def to_dict(self) -> dict:
         d = {"name": self.name, "start": [float(v) for v in self.start], "end": [float(v) for v in self.end],
              "radius": self.radius, "up": [float(v) for v in self.up], "unroll": self.unroll}
@@ -147,12 +215,11 @@ class WallPiece:
 @dataclass(frozen=True)
 class WallGrid:
     """A piece's wall sampled at h[i] (rows) and phi[j] (columns): h from 0 to length inclusive,
-    phi = j * 2 pi / W. Point (i, j) is start + h[i] u + b(h[i]) + r ring[j]."""
+    phi = j * 2 pi / W. Point (i, j) is the piece's wall point at (h[i], phi[j])."""
 
-    piece: WallPiece
+    piece: "WallPiece | ElbowPiece"
     h: np.ndarray  # (H,)
     phi: np.ndarray  # (W,)
-    ring: np.ndarray  # (W, 3) unit directions from the axis to the wall
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -168,24 +235,19 @@ class WallGrid:
 
     def points(self, rows: slice | np.ndarray = slice(None)) -> np.ndarray:
         """World points (h rows, W, 3) of the grid rows `rows`."""
-        p = self.piece
-        h = self.h[rows]
-        axis_pts = p.start + h[:, None] * p.axis + p.axis_offset(h)
-        return axis_pts[:, None, :] + p.radius * self.ring[None, :, :]
+        return self.piece.wall_points(self.h[rows], self.phi)
 
 
-def wall_grid(piece: WallPiece, spacing_m: float) -> WallGrid:
-    """The regular (h, r phi) grid of `piece` at about `spacing_m` (exactly length / (H - 1)
-    along and 2 pi r / W around)."""
+def wall_grid(piece, spacing_m: float) -> WallGrid:
+    """The regular (h, r phi) grid of `piece` at about `spacing_m` (exactly length / (H - 1) along and 2 pi r / W
+    around; along an elbow's axis finer by its outside's stretch, so that its outer wall is sampled as finely)."""
     if not (math.isfinite(spacing_m) and spacing_m > 0):
         raise PipemapError(f"grid spacing must be positive, got {spacing_m!r}", key="appearance.spacing_m")
-    n_h = max(2, int(round(piece.length / spacing_m)) + 1)
+    n_h = max(2, int(round(piece.length * piece.along_stretch / spacing_m)) + 1)
     n_phi = max(8, int(round(2 * np.pi * piece.radius / spacing_m)))
     h = np.linspace(0.0, piece.length, n_h)
     phi = np.arange(n_phi) * (2 * np.pi / n_phi)
-    _, e_up, e_cw = piece.frame()
-    ring = np.cos(phi)[:, None] * e_up + np.sin(phi)[:, None] * e_cw
-    return WallGrid(piece, h, phi, ring)
+    return WallGrid(piece, h, phi)
 
 
 def sample_wall(piece: WallPiece, spacing_m: float,
@@ -209,20 +271,17 @@ def opening_mask(grid: WallGrid, others, margin_m: float) -> np.ndarray:
     return keep
 
 
-def inside_piece(points: np.ndarray, piece: WallPiece, margin_m: float = 0.0, h_margin_m: float = 0.0) -> np.ndarray:
-    """Points (..., 3) inside the solid cylinder of `piece` by more than margin_m (radially),
-    between its ends widened by h_margin_m."""
-    u = piece.axis
-    q = np.asarray(points, float) - piece.start
-    h = q @ u
-    radial2 = np.einsum("...i,...i->...", q, q) - h * h
-    r_in = max(piece.radius - margin_m, 0.0)
-    return (h >= -h_margin_m) & (h <= piece.length + h_margin_m) & (radial2 < r_in * r_in)
+def inside_piece(points: np.ndarray, piece, margin_m: float = 0.0, h_margin_m: float = 0.0) -> np.ndarray:
+    """Points (..., 3) inside the solid of `piece` (a cylinder or an elbow's bent tube) by more than margin_m
+    (radially), between its ends widened by h_margin_m."""
+    return piece.contains(points, margin_m, h_margin_m)
 
 
-def _may_overlap(a: WallPiece, b: WallPiece) -> bool:
-    """Whether the capsules around the two axes (radius r) can touch."""
-    return segment_distance(a.start, a.end, b.start, b.end) <= a.radius + b.radius
+def _may_overlap(a, b) -> bool:
+    """Whether the capsules around the two axes (radius r; an elbow's axis as its polyline) can touch."""
+    pa, pb = a.axis_polyline(), b.axis_polyline()
+    return min(segment_distance(pa[i], pa[i + 1], pb[k], pb[k + 1])
+               for i in range(len(pa) - 1) for k in range(len(pb) - 1)) <= a.radius + b.radius
 
 
 def segment_distance(p0, p1, q0, q1) -> float:
@@ -247,10 +306,11 @@ def point_segment_distance(x, p0, p1) -> float:
 
 def in_line_of_sight(centre: np.ndarray, points: np.ndarray, pieces, tol_m: float, hops: int = 4) -> np.ndarray:
     """(N,) whether the straight line from `centre` to each point (N, 3) stays inside the pipes
-    (the union of the pieces' solid cylinders, widened by tol_m).
+    (the union of the pieces' solids, cylinders and elbows' bent tubes, widened by tol_m).
 
-    Marches along each line: from the current place, every piece that contains it gives the
-    parameter where the line leaves that piece (its cylinder or its end planes); the march jumps
+    Marches along each line: where the rest of the line lies in one piece, it is in sight; else
+    from the current place, every piece that contains it gives the
+    parameter where the line leaves that piece (its wall or its end planes); the march jumps
     to the farthest such exit. The point is in sight when that reaches it within `hops` jumps
     (one per piece boundary crossed: a tee opening is one)."""
     c = np.asarray(centre, float)
@@ -260,41 +320,28 @@ def in_line_of_sight(centre: np.ndarray, points: np.ndarray, pieces, tol_m: floa
     s = np.zeros(n)
     done = np.zeros(n, bool)
     todo = np.arange(n)
+    P = np.asarray(points, float)
     for _ in range(hops):
         if not len(todo):
             break
+        X = c + s[todo, None] * D[todo]
+        held = np.zeros(len(todo), bool)
+        for piece in pieces:  # the rest of the line lies in one piece: in sight, no march needed
+            held |= piece.holds_segment(X, P[todo], tol_m)
+        done[todo[held]] = True
+        todo, X = todo[~held], X[~held]
+        if not len(todo):
+            break
         Dt = D[todo]
-        X = c + s[todo, None] * Dt
         best = s[todo].copy()
         for piece in pieces:
-            best = np.maximum(best, _exit(piece, X, Dt, s[todo], tol_m))
+            best = np.maximum(best, piece.exit(X, Dt, s[todo], tol_m))
         reached = best * length[todo] >= length[todo] - tol_m
         done[todo[reached]] = True
         moved = best > s[todo] + 1e-9
         s[todo] = best
         todo = todo[~reached & moved]
     return done
-
-
-def _exit(piece: WallPiece, X: np.ndarray, D: np.ndarray, s: np.ndarray, tol_m: float) -> np.ndarray:
-    """Line parameter where c + s D, now at X (inside or not), leaves `piece`'s solid; s where X
-    is not inside it."""
-    u = piece.axis
-    r = piece.radius + tol_m
-    q = X - piece.start
-    h = q @ u
-    w = q - h[:, None] * u
-    Du = D @ u
-    v = D - Du[:, None] * u
-    C = np.einsum("ij,ij->i", w, w) - r * r
-    inside = (C <= 0) & (h >= -tol_m) & (h <= piece.length + tol_m)
-    A = np.einsum("ij,ij->i", v, v)
-    B = np.einsum("ij,ij->i", w, v)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tau_cyl = np.where(A > 1e-18, (-B + np.sqrt(np.maximum(B * B - A * C, 0.0))) / A, np.inf)
-        tau_end = np.where(Du > 0, (piece.length + tol_m - h) / Du, np.where(Du < 0, (-tol_m - h) / Du, np.inf))
-    tau = np.maximum(np.minimum(tau_cyl, tau_end), 0.0)
-    return np.where(inside, s + tau, s)
 
 
 __all__ = ["WallPiece", "WallGrid", "wall_grid", "sample_wall", "opening_mask", "inside_piece", "in_line_of_sight",

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from pipemap.errors import PipemapError
-from pipemap.mapping.wall import WallPiece
+from pipemap.mapping.elbow_piece import piece_from_dict
 from pipemap.trajectory import read_tum
 from pipemap.yamlfile import read_yaml
 
@@ -60,19 +60,27 @@ def read_junctions(result_dir: Path) -> list[dict] | None:
 
 
 def read_pieces(run: dict | None, walls) -> list[dict]:
-    """The wall pieces' axes (run.json "wall_pieces"; without it, the unrolled walls' axes): name, start, end,
-    radius, up, unroll."""
+    """The wall pieces' axes (run.json "wall_pieces"; without it, the unrolled walls' axes): name, kind, start,
+    end, radius, up (12 o'clock across the axis; an elbow's as given, taken across the arc's tangent), unroll;
+    an elbow's also centre, normal and angle_deg."""
     where = "run.json: wall_pieces"
     items = (run or {}).get("wall_pieces")
     if isinstance(items, list):
-        pieces = [WallPiece.from_dict(d, f"{where}[{i}]") for i, d in enumerate(items)]
+        pieces = [piece_from_dict(d, f"{where}[{i}]") for i, d in enumerate(items)]
     else:
         pieces = [w.piece for w in walls]
     out = []
     for p in pieces:
-        u, e_up, _ = p.frame()
-        out.append({"name": p.name, "start": np.round(p.start, 4).tolist(), "end": np.round(p.end, 4).tolist(),
-                    "radius": float(p.radius), "up": np.round(e_up, 6).tolist(), "unroll": bool(p.unroll)})
+        rec = {"name": p.name, "kind": p.kind, "start": np.round(p.start, 4).tolist(),
+               "end": np.round(p.end, 4).tolist(), "radius": float(p.radius), "unroll": bool(p.unroll)}
+        if p.kind == "arc":
+            e_up = p.up / np.linalg.norm(p.up)  # taken across the local tangent all along the arc
+            rec.update(centre=np.round(p.centre, 4).tolist(), normal=np.round(p.normal, 6).tolist(),
+                       angle_deg=round(p.angle_deg, 4))
+        else:
+            e_up = p.frame()[1]
+        rec["up"] = np.round(e_up, 6).tolist()
+        out.append(rec)
     return out
 
 

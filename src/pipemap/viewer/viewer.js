@@ -57,28 +57,57 @@ function header() {
 // ---- 3D view ----
 function vec(a) { return new THREE.Vector3(a[0], a[1], a[2]); }
 
+function pieceAxis(p) {
+  // The axis as h -> {at, tangent}: a straight piece's line, or an elbow's arc turning about its normal.
+  const a = vec(p.start);
+  if (p.kind !== "arc") {
+    const b = vec(p.end), u = b.clone().sub(a).normalize();
+    return { length: a.distanceTo(b), at: (h) => ({ at: a.clone().addScaledVector(u, h), tangent: u.clone() }) };
+  }
+  const c = vec(p.centre), n = vec(p.normal).normalize();
+  const rho = a.distanceTo(c), e1 = a.clone().sub(c).normalize(), e2 = new THREE.Vector3().crossVectors(n, e1);
+  const angle = THREE.MathUtils.degToRad(p.angle_deg);
+  return {
+    length: rho * angle,
+    at: (h) => {
+      const t = h / rho, cos = Math.cos(t), sin = Math.sin(t);
+      return { at: c.clone().addScaledVector(e1, rho * cos).addScaledVector(e2, rho * sin),
+        tangent: e1.clone().multiplyScalar(-sin).addScaledVector(e2, cos) };
+    },
+  };
+}
+
 function pipeOutline(p) {
-  const a = vec(p.start), b = vec(p.end);
-  const length = a.distanceTo(b);
-  const u = b.clone().sub(a).normalize();
-  const up = vec(p.up); up.addScaledVector(u, -up.dot(u)).normalize();
-  const cw = new THREE.Vector3().crossVectors(u, up);
-  const at = (h, angle) => a.clone().addScaledVector(u, h)
-    .addScaledVector(up, p.radius * Math.cos(angle)).addScaledVector(cw, p.radius * Math.sin(angle));
+  // Rings every 0.5 m (an elbow: every 15 deg at the most), four lines along the wall (12 o'clock red), the axis.
+  const axis = pieceAxis(p);
+  const length = axis.length;
+  const at = (h, angle) => {
+    const { at: x, tangent: u } = axis.at(h);
+    const up = vec(p.up); up.addScaledVector(u, -up.dot(u)).normalize();
+    const cw = new THREE.Vector3().crossVectors(u, up);
+    return x.addScaledVector(up, p.radius * Math.cos(angle)).addScaledVector(cw, p.radius * Math.sin(angle));
+  };
   const pos = [], col = [];
   const push = (x, y, c) => { pos.push(x.x, x.y, x.z, y.x, y.y, y.z); col.push(...c, ...c); };
-  const rings = Math.max(1, Math.round(length / 0.5));
+  const arc = p.kind === "arc";
+  const rings = Math.max(1, Math.round(length / 0.5), arc ? Math.ceil(p.angle_deg / 15) : 1);
+  const steps = arc ? Math.max(8, Math.ceil(p.angle_deg / 3)) : 1;
   for (let i = 0; i <= rings; i++) {
     const h = (length * i) / rings;
     for (let k = 0; k < 24; k++) push(at(h, (k * Math.PI) / 12), at(h, ((k + 1) * Math.PI) / 12), [0.33, 0.47, 0.67]);
   }
-  for (let k = 0; k < 4; k++) push(at(0, (k * Math.PI) / 2), at(length, (k * Math.PI) / 2),
-    k === 0 ? [1.0, 0.25, 0.25] : [0.33, 0.47, 0.67]);
-  push(a, b, [0.6, 0.7, 1.0]);
+  for (let i = 0; i < steps; i++) {
+    const h0 = (length * i) / steps, h1 = (length * (i + 1)) / steps;
+    for (let k = 0; k < 4; k++) push(at(h0, (k * Math.PI) / 2), at(h1, (k * Math.PI) / 2),
+      k === 0 ? [1.0, 0.25, 0.25] : [0.33, 0.47, 0.67]);
+    push(axis.at(h0).at, axis.at(h1).at, [0.6, 0.7, 1.0]);
+  }
   const g = new THREE.BufferGeometry();
   g.setAttribute("position", new THREE.Float32BufferAttribute(pos, 3));
   g.setAttribute("color", new THREE.Float32BufferAttribute(col, 3));
-  return new THREE.LineSegments(g, new THREE.LineBasicMaterial({ vertexColors: true }));
+  const lines = new THREE.LineSegments(g, new THREE.LineBasicMaterial({ vertexColors: true }));
+  lines.name = `piece-${p.name}`;
+  return lines;
 }
 
 function cloudPoints(cloud) {
@@ -107,6 +136,7 @@ function sceneContents(scene) {
   for (const p of DATA.pieces) {
     groups.pipes.add(pipeOutline(p));
     box.expandByPoint(vec(p.start)); box.expandByPoint(vec(p.end));
+    if (p.kind === "arc") { const axis = pieceAxis(p); box.expandByPoint(axis.at(axis.length / 2).at); }
   }
   const radius = DATA.radius || (DATA.pieces[0] && DATA.pieces[0].radius) || 0.1;
   const labels = [];
@@ -183,7 +213,12 @@ function build3d() {
   document.getElementById("show-labels").addEventListener("change", render);
   new ResizeObserver(resize).observe(holder);
   resize();
-  return { drawnPixels: () => drawnPixels(renderer, scene, camera) };
+  const outlines = DATA.pieces.map((p) => {
+    // each outline's name and the middle of its axis, for checks against the exact geometry
+    const axis = pieceAxis(p), mid = axis.at(axis.length / 2).at;
+    return `${p.name}:${p.kind || "line"}:${[mid.x, mid.y, mid.z].map((v) => v.toFixed(4)).join(":")}`;
+  });
+  return { drawnPixels: () => drawnPixels(renderer, scene, camera), outlines };
 }
 
 function drawnPixels(renderer, scene, camera) {
@@ -566,6 +601,7 @@ async function main() {
   probe(views);
   ROOT.dataset.walls = String(Object.keys(views).length);
   ROOT.dataset.drawnPixels = String(view.drawnPixels());
+  ROOT.dataset.outlines = view.outlines.join(" ");
   ROOT.dataset.readyMs = performance.now().toFixed(0);
   ROOT.dataset.ready = "1";
 }

@@ -1,7 +1,8 @@
 """The unrolled walls of a result (unrolled/*.png and their sidecars) in the inspector's coordinates.
 
 A column is a distance along the pipe: chainage where the sidecar gives `chainage_of_column_0_m`
-(`pipemap-unrolled/2`), else h from the piece's `axis.start` (`/1`). A row is a clock position:
+(`pipemap-unrolled/2`, `/3`), else h from the piece's `axis.start` (`/1`); `/3` adds elbows, whose
+columns run along the arc of their axis. A row is a clock position:
 phi = phi_of_row_0_rad + row * phi_per_row_rad, 0 at 12 o'clock, clockwise looking along the survey.
 Pixel coordinates have their origin at the centre of the top-left pixel.
 """
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from pipemap.errors import PipemapError
+from pipemap.mapping.elbow_piece import ElbowPiece, piece_from_dict
 from pipemap.mapping.wall import WallPiece
 
 # An observation's wall point is placed on the unrolled wall of the piece it lies on: within the image's
@@ -36,7 +38,7 @@ class UnrolledWall:
     chainage0_m: float | None  # chainage of column 0 (None: the sidecar has none)
     phi0_rad: float
     phi_per_row_rad: float
-    piece: WallPiece  # the axis the image is unrolled about
+    piece: WallPiece | ElbowPiece  # the axis the image is unrolled about (an elbow's: its arc)
 
     @classmethod
     def from_sidecar(cls, png: Path) -> "UnrolledWall":
@@ -51,7 +53,7 @@ class UnrolledWall:
             raise PipemapError("not a pipemap-unrolled sidecar (no format: pipemap-unrolled/N)", side)
         try:
             axis = meta["axis"]
-            piece = WallPiece.from_dict({"name": meta.get("piece", png.stem), **axis}, str(side))
+            piece = piece_from_dict({"name": meta.get("piece", png.stem), **axis}, str(side))
             chainage0 = meta.get("chainage_of_column_0_m")
             return cls(str(meta.get("piece", png.stem)), png, int(meta["width_px"]), int(meta["height_px"]),
                        float(meta.get("h_of_column_0_m", 0.0)), float(meta["metres_per_pixel_along"]),
