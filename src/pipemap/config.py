@@ -148,9 +148,6 @@ class BundleSettings(_Section):
                                     "where the section's VO put them")
     tee_attach_keyframes: int = Field(20, gt=0, description="keyframes of the section after a tee solved with it "
                                       "(from P_b on); later ones take the same rigid correction")
-    wall_ahead_radii: float = Field(1.0, gt=0, description="a straight section's window holds to its cylinder the "
-                                    "points at most this many radii past its last camera (inf: every point): the "
-                                    "pipe ahead may bend")
     elbow_torus: bool = Field(True, description="an elbow's solve holds the wall of its bend to a torus tangent to "
                               "both pipes' cylinders, its bend radius solved with the tee parameters (off: the bend's "
                               "wall counts by its reprojections only)")
@@ -201,6 +198,8 @@ class EvidenceSettings(_Section):
     """Which junction passes are junctions (backend/evidence.py): where the axis runs straight on, a side
     branch's wall must show in the points around the pass (backend/side_opening.py), and places it."""
 
+    elbow_reach_m: float = Field(1.0, gt=0, description="an elbow is fitted whole (both straight pipes and the bend) "
+                                 "over its straight pipes' walls this far either side of the bend")
     opening_min_points: int = Field(30, gt=3, description="points on the branch wall that show a side opening")
     opening_reach_radii: float = Field(2.0, gt=0, description="branch-wall points are looked for up to this many "
                                        "pipe radii beyond the through pipe's wall, and as far along it either side "

@@ -238,4 +238,5 @@ def pipe_beyond(points: np.ndarray, a: Cylinder, b: Cylinder, bend: Bend, tolera
     return int(on_a.sum()), int(on_b.sum())
 
 
-__all__ = ["Bend", "ElbowFit", "ElbowShape", "model_bend", "bend_normals", "elbow_regions", "elbow_residuals", "fit_elbow", "bend_of", "bend_residuals", "on_arc", "fit_bend_radius", "pipe_beyond"]
+__all__ = ["Bend", "ElbowFit", "ElbowShape", "model_bend", "bend_normals", "elbow_regions", "elbow_residuals",
+           "fit_elbow", "bend_of", "bend_residuals", "on_arc", "fit_bend_radius", "pipe_beyond"]

@@ -400,8 +400,7 @@ class StraightVO:
             return
         fit, c, rescale = scaled
         fixed = self._held_poses(first, last)
-        kwargs = dict(fixed_poses=fixed, cylinder=fit, cylinder_reference=0,
-                      cylinder_points=fit.inliers & self._passed_wall(fit.cylinder, self._X[uniq], c))
+        kwargs = dict(fixed_poses=fixed, cylinder=fit, cylinder_reference=0, cylinder_points=fit.inliers)
         if self.b.tau <= 0 and len(fixed) < 2:
             kwargs["fixed_distance"] = (0, n - 1)
         obs = Observations(ks - first, inv, pixels)
@@ -413,17 +412,6 @@ class StraightVO:
         self.windows.append(WindowReport(sec.number, int(first), int(last), len(fixed), len(uniq), len(obs),
                                          float(res.time_s), int(res.iterations), float(res.rms_px),
                                          float(res.cylinder_rms_m), float(rescale), float(after / before)))
-
-    def _passed_wall(self, cylinder, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
-        """(M,) bool: points no further along the pipe than `bundle.wall_ahead_radii` radii past the window's last
-        camera. The camera sees the pipe well ahead of it; where that pipe bends gently (a sweeping bend, a
-        45 deg elbow of long radius), its wall leaves the straight cylinder by millimetres only, within the
-        outlier gate, and pulled the section's last poses and its end cylinder round by 0.3 deg towards the
-        bend, 10 mm at a sweeping bend's vertex."""
-        if not np.isfinite(self.b.wall_ahead_radii):
-            return np.ones(len(points), bool)
-        d = cylinder.direction if (centres[-1] - centres[0]) @ cylinder.direction >= 0 else -cylinder.direction
-        return (points - centres[-1]) @ d <= self.b.wall_ahead_radii * self.radius
 
     def _window_observations(self, first: int, last: int):
         """Observations of live points in keyframes first..last, a point needing two of them: (keyframe, row in
