@@ -198,8 +198,6 @@ class EvidenceSettings(_Section):
     """Which junction passes are junctions (backend/evidence.py): where the axis runs straight on, a side
     branch's wall must show in the points around the pass (backend/side_opening.py), and places it."""
 
-    elbow_reach_m: float = Field(1.0, gt=0, description="an elbow is fitted whole (both straight pipes and the bend) "
-                                 "over its straight pipes' walls this far either side of the bend")
     opening_min_points: int = Field(30, gt=3, description="points on the branch wall that show a side opening")
     opening_reach_radii: float = Field(2.0, gt=0, description="branch-wall points are looked for up to this many "
                                        "pipe radii beyond the through pipe's wall, and as far along it either side "

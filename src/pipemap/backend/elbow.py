@@ -25,9 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scipy.optimize import least_squares
-
-from pipemap.geometry.cylinder import Cylinder, axis_frame
+from pipemap.geometry.cylinder import Cylinder
 from pipemap.solvers.lm import levenberg_marquardt
 from pipemap.solvers.robust import huber_irls, mad_inliers
 
@@ -152,80 +150,6 @@ def fit_bend_radius(points: np.ndarray, bend: Bend, radius: float, *, huber_m: f
     return ElbowFit(rho, sigma, int(inliers.sum()), rms)
 
 
-@dataclass(frozen=True)
-class ElbowShape:
-    """An elbow fitted whole: both straight axes and the arc joining them tangentially."""
-
-    bend: Bend
-    bend_radius_m: float
-    points: int  # wall points in the fit: first straight, bend, second straight
-    rms_m: float
-
-
-def _directions(d: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    E = axis_frame(d)[:, :2]
-    v = d + E @ uv
-    return v / np.linalg.norm(v)
-
-
-def _shape_of(x: np.ndarray, d1: np.ndarray, d2: np.ndarray) -> tuple[Bend, float]:
-    a, b = _directions(d1, x[3:5]), _directions(d2, x[5:7])
-    return Bend(x[:3].copy(), a, b, float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))), float(x[7])
-
-
-def elbow_regions(points: np.ndarray, bend: Bend, rho: float) -> np.ndarray:
-    """0, 1 or 2 per point: on the first straight pipe, on the bend or on the second straight pipe, split by
-    the planes through the arc's centre square to the axis at its two ends."""
-    p = points - bend.centre(rho)
-    start = -bend.inward
-    along = np.cross(bend.normal, start)
-    if along @ bend.d1 < 0:
-        along = -along
-    phi = np.degrees(np.arctan2(p @ along, p @ start))
-    return np.where(phi < 0, 0, np.where(phi > bend.angle_deg, 2, 1))
-
-
-def elbow_residuals(points: np.ndarray, region: np.ndarray, bend: Bend, rho: float, radius: float) -> np.ndarray:
-    """Each point's distance to the wall of its region: the straight cylinders or the bend's torus."""
-    T = np.tan(np.radians(bend.angle_deg) / 2) * rho
-    e = bend_residuals(points, bend, rho, radius)[0]
-    for k, origin, d in ((0, bend.vertex - T * bend.d1, bend.d1), (2, bend.vertex + T * bend.d2, bend.d2)):
-        v = points - origin
-        e = np.where(region == k, np.linalg.norm(v - np.outer(v @ d, d), axis=1) - radius, e)
-    return e
-
-
-def fit_elbow(points: np.ndarray, bend: Bend, rho: float, radius: float, *, huber_m: float, mad_k: float,
-              outlier_passes: int, reach_m: float, min_points: int = 30) -> ElbowShape | None:
-    """The elbow's vertex, both axes and its bend radius fitted together to the wall points of the straight
-    pipes within `reach_m` of the arc and of the bend between them, each on its own wall (cylinder or torus),
-    with the arc held tangent to both axes. The vertex of a sweeping bend lies far from its wall (3 m of bend
-    radius through 30 deg puts it 0.8 m from either end of the arc): extrapolated from two short straight
-    axes alone it moves by centimetres with each axis's direction; the bend's own wall holds it."""
-    P = np.asarray(points, float)
-    x = np.r_[bend.vertex, np.zeros(4), rho]
-    d1, d2 = bend.d1, bend.d2
-    use = np.zeros(len(P), bool)
-    for _ in range(outlier_passes + 1):
-        shape, rho = _shape_of(x, d1, d2)
-        region = elbow_regions(P, shape, rho)
-        T = np.tan(np.radians(shape.angle_deg) / 2) * rho
-        near = np.where(region == 0, (shape.vertex - T * shape.d1 - P) @ shape.d1 < reach_m,
-                        np.where(region == 2, (P - shape.vertex - T * shape.d2) @ shape.d2 < reach_m, True))
-        e = elbow_residuals(P, region, shape, rho, radius)
-        use = near & mad_inliers(e, mad_k, reference=near & (np.abs(e) < 4 * huber_m) if use.sum() == 0 else use,
-                                 floor=huber_m)
-        if use.sum() < min_points or np.sum(use & (region == 1)) < min_points:
-            return None
-        sel, reg = P[use], region[use]
-        res = least_squares(lambda q: elbow_residuals(sel, reg, *_shape_of(q, d1, d2), radius), x, loss="huber",
-                            f_scale=huber_m, x_scale=np.r_[np.full(3, radius), np.full(4, 0.01), rho])
-        x = res.x
-    shape, rho = _shape_of(x, d1, d2)
-    e = elbow_residuals(P[use], region[use], shape, rho, radius)
-    return ElbowShape(shape, rho, int(use.sum()), float(np.sqrt(np.mean(e * e))))
-
-
 def pipe_beyond(points: np.ndarray, a: Cylinder, b: Cylinder, bend: Bend, tolerance_m: float) -> tuple[int, int]:
     """Points on a's wall more than BEYOND_RADII radii past the vertex along d1, and on b's wall as far before
     it (against d2), each off the other cylinder's wall: the pipe that runs on through a tee."""
@@ -238,5 +162,5 @@ def pipe_beyond(points: np.ndarray, a: Cylinder, b: Cylinder, bend: Bend, tolera
     return int(on_a.sum()), int(on_b.sum())
 
 
-__all__ = ["Bend", "ElbowFit", "ElbowShape", "model_bend", "bend_normals", "elbow_regions", "elbow_residuals",
-           "fit_elbow", "bend_of", "bend_residuals", "on_arc", "fit_bend_radius", "pipe_beyond"]
+__all__ = ["Bend", "ElbowFit", "model_bend", "bend_normals", "bend_of", "bend_residuals", "on_arc", "fit_bend_radius",
+           "pipe_beyond"]

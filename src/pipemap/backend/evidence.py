@@ -22,8 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipemap.backend.elbow import (ARC_MARGIN_DEG, bend_of, bend_residuals, fit_bend_radius, fit_elbow, on_arc,
-                                   pipe_beyond)
+from pipemap.backend.elbow import ARC_MARGIN_DEG, bend_of, bend_residuals, fit_bend_radius, on_arc, pipe_beyond
 from pipemap.backend.network_map import STRAIGHT_THROUGH_DEG, MappedJunction, section_points
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.backend.side_opening import fit_side_opening
@@ -135,32 +134,9 @@ def _bend_radius(points: np.ndarray, bend, radius: float, settings: Settings) ->
     return float("nan") if fit is None else fit.bend_radius_m
 
 
-def elbow_points(pipe_map: PipeMap, j: MappedJunction, reach_m: float) -> np.ndarray:
-    """The points seen from the elbow's pass and from the camera path within `reach_m` either side of it."""
-    c = pipe_map.poses[:, :3, 3]
-    lo, hi = j.first, j.last
-    while lo > 0 and np.linalg.norm(c[lo - 1] - c[j.first]) <= reach_m:
-        lo -= 1
-    while hi < len(c) - 1 and np.linalg.norm(c[hi + 1] - c[j.last]) <= reach_m:
-        hi += 1
-    order = np.argsort(pipe_map.point_tracks)
-    return pipe_map.points[order[section_points(pipe_map.keyframes, lo, hi, pipe_map.point_tracks[order])]]
-
-
-def whole_elbow(pipe_map: PipeMap, j: MappedJunction, end, start, radius: float, settings: Settings):
-    """`elbow.fit_elbow` of the elbow `j` from its end cylinders, vertex and bend radius so far (None when too few
-    points lie on its walls)."""
-    b, reach = settings.bundle, settings.evidence.elbow_reach_m
-    rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
-    return fit_elbow(elbow_points(pipe_map, j, reach), bend_of(end, start, j.centroid), rho, radius,
-                     huber_m=b.huber_m, mad_k=b.mad_k, outlier_passes=b.outlier_passes, reach_m=reach,
-                     min_points=settings.evidence.opening_min_points)
-
-
 def fit_elbow_bends(pipe_map: PipeMap, radius: float, settings: Settings) -> PipeMap:
-    """The map with every elbow's vertex, angle and bend radius from its final points (after the tee model has
-    joined its two pipes): both straight pipes and the bend fitted together (`elbow.fit_elbow`), or, where
-    that fit finds too few points, the angle of the end cylinders and the bend radius of the bend's wall."""
+    """The map with every elbow's angle and bend radius from its final end cylinders and points (after the
+    tee model has joined its two pipes)."""
     out = pipe_map.copy()
     order = np.argsort(out.point_tracks)
     tids = out.point_tracks[order]
@@ -168,15 +144,10 @@ def fit_elbow_bends(pipe_map: PipeMap, radius: float, settings: Settings) -> Pip
         end, start, _ = _end_cylinders(out, j)
         if j.type != "elbow" or end is None or start is None:
             continue
-        shape = whole_elbow(out, j, end, start, radius, settings)
-        if shape is not None:
-            j.centroid, j.angle_deg, j.bend_radius_m = shape.bend.vertex, shape.bend.angle_deg, shape.bend_radius_m
-            continue
         bend = bend_of(end, start, j.centroid)
         j.angle_deg = bend.angle_deg
         j.bend_radius_m = _bend_radius(_pass_points(out, j, order, tids, settings), bend, radius, settings)
     return out
 
 
-__all__ = ["DroppedPass", "weigh_junction_evidence", "type_turning_passes", "fit_elbow_bends", "whole_elbow",
-           "elbow_points"]
+__all__ = ["DroppedPass", "weigh_junction_evidence", "type_turning_passes", "fit_elbow_bends"]

@@ -25,12 +25,10 @@ import numpy as np
 from pipemap.backend.bundle import Observations
 from pipemap.backend.elbow import ARC_MARGIN_DEG, bend_of, on_arc
 from pipemap.backend.junction import solve_junction
-from pipemap.backend.evidence import whole_elbow
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.camera.base import CameraModel
 from pipemap.config import Settings
 from pipemap.frontend.tracks import Keyframe
-from pipemap.geometry.cylinder import Cylinder
 
 
 @dataclass
@@ -90,10 +88,6 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
             reports.append(JoinReport(j.id, "kept the VO chaining: no end cylinder on one side"))
             continue
         r_pose, b_pose = red.last, blue.first
-        red_cyl, blue_cyl, elbow = red.end, blue.start, None
-        if j.type == "elbow":
-            elbow = _elbow_cylinders(out, j, red, blue, radius, settings)
-            red_cyl, blue_cyl = elbow[0], elbow[1]
         lo = max(red.first, r_pose - hold + 1)
         hi = min(blue.last, b_pose + attach - 1)
         sel, obs = _observations(out.keyframes, active, lo, hi, tids)
@@ -103,15 +97,16 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
             continue
         rows = order[sel]  # the junction's points in the map
         on_wall, on_bend, rho = None, None, None
-        if elbow is not None:
-            bend, rho = elbow[2], elbow[3]
+        if j.type == "elbow":
+            rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
+            bend = bend_of(red.end, blue.start, j.centroid)
             on_wall = ~on_arc(out.points[rows], bend, rho, margin_deg=-ARC_MARGIN_DEG)
             # the torus term takes the points well inside the arc; those at its ends could be the straight pipe's
             on_bend = on_arc(out.points[rows], bend, rho)
         fixed = [k - lo for k in range(lo, r_pose)]
         attached = [k - lo for k in range(b_pose + 1, hi + 1)]
         try:
-            res = solve_junction(camera, out.poses[lo:hi + 1], out.points[rows], obs, red_cyl, blue_cyl,
+            res = solve_junction(camera, out.poses[lo:hi + 1], out.points[rows], obs, red.end, blue.start,
                                  red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
                                  radius=radius, settings=settings, cylinder_points=on_wall, torus_points=on_bend,
                                  bend_radius=rho if settings.bundle.elbow_torus else None,
@@ -141,20 +136,6 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
                                   float(res.cylinder_rms_m), float(res.model.angle_deg), float(moved), float(angle),
                                   float(res.time_s)))
     return out, reports
-
-
-def _elbow_cylinders(pipe_map: PipeMap, j, red, blue, radius: float, settings: Settings):
-    """(red cylinder, blue cylinder, bend, bend radius) of an elbow for its solve: the straight pipes' axes of the
-    whole elbow fitted to its walls (`evidence.whole_elbow`), the bend's wall and the arc tangent to both; the
-    end cylinders of the sections either side where that fit fails. A section that ends inside the bend (the
-    images look straight again before the turn is done) fits its end cylinder to some of the bend's wall,
-    0.4 deg off on a 45 deg elbow of two diameters' bend radius."""
-    shape = whole_elbow(pipe_map, j, red.end, blue.start, radius, settings)
-    if shape is None:
-        rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
-        return red.end, blue.start, bend_of(red.end, blue.start, j.centroid), rho
-    b = shape.bend
-    return Cylinder(b.vertex, b.d1, radius), Cylinder(b.vertex, b.d2, radius), b, shape.bend_radius_m
 
 
 __all__ = ["JoinReport", "join_sections"]
