@@ -148,6 +148,9 @@ class BundleSettings(_Section):
                                     "where the section's VO put them")
     tee_attach_keyframes: int = Field(20, gt=0, description="keyframes of the section after a tee solved with it "
                                       "(from P_b on); later ones take the same rigid correction")
+    elbow_torus: bool = Field(True, description="an elbow's solve holds the wall of its bend to a torus tangent to "
+                              "both pipes' cylinders, its bend radius solved with the tee parameters (off: the bend's "
+                              "wall counts by its reprojections only)")
 
 
 class StraightVOSettings(_Section):

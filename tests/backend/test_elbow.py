@@ -79,3 +79,15 @@ def test_a_cross_has_pipe_beyond_its_vertex_on_both_sides():
     opposite = np.outer(-h, d2) + 0.15 * (np.outer(np.cos(w), f) + np.outer(np.sin(w), [0, 0, 1.0]))
     on_a, on_b = pipe_beyond(np.vstack([P, opposite]), a, b, bend, 0.02)
     assert on_a > 1000 and on_b > 1000
+
+
+def test_bend_normals_match_numerical():
+    from pipemap.backend.elbow import bend_normals
+
+    rng = np.random.default_rng(4)
+    P, a, b = _elbow_points(rng, 60.0, 0.5, n=40, noise=0.01)
+    bend = bend_of(a, b, np.zeros(3))
+    J = bend_normals(P, bend, 0.5)
+    num = np.stack([(bend_residuals(P + e, bend, 0.5, R)[0] - bend_residuals(P - e, bend, 0.5, R)[0]) / 2e-6
+                    for e in np.eye(3) * 1e-6], axis=1)
+    np.testing.assert_allclose(J, num, atol=1e-6)

@@ -335,6 +335,46 @@ def test_junction_jacobians_match_numerical():
             assert num == pytest.approx(2 * eq.gp[m, k], rel=1e-5, abs=1e-6)
 
 
+def test_elbow_jacobians_match_numerical():
+    """An elbow's solve: the points near I on the bend's torus (bend radius rho a sixth global unknown), the
+    others on their cylinders; the analytic gradient against central differences of the cost."""
+    sc = make_tee_scene(n_points=150, n_red=2, n_tee=6, n_blue=2, outlier_frac=0.0, seed=6)
+    bend = np.linalg.norm(sc.points0 - sc.I, axis=1) < 0.35
+    prob = JunctionProblem(sc.camera, (sc.R0, sc.t0), sc.points0, sc.obs, sc.red_fit, sc.blue_fit,
+                           red_pose=sc.red_pose, blue_pose=sc.blue_pose, fixed=sc.fixed, attached=sc.attached,
+                           huber_px=1e6, huber_m=1e6, cylinder_points=~bend, torus_points=bend, bend_radius=0.3,
+                           through=None)
+    assert prob.n_global == 6 and bend.sum() > 10
+    state = prob.initial
+    inl = np.ones(len(prob.obs), bool)
+    on_blue = prob.assign(state)
+    on_wall = np.ones(prob.M, bool)
+    eq = prob.normal_equations(state, _Stage(prob, inl), on_blue, on_wall)
+    C, eps = prob.n_free, 1e-6
+
+    def cost_at(dc, dx, dp):
+        return prob.cost(prob._step(state, (dc, dx, dp)), inl, on_blue, on_wall)
+
+    zero = (np.zeros((C, 6)), np.zeros(6), np.zeros((prob.M, 3)))
+    for k in range(6):
+        dx = np.zeros(6)
+        dx[k] = eps
+        num = (cost_at(zero[0], dx, zero[2]) - cost_at(zero[0], -dx, zero[2])) / (2 * eps)
+        assert num == pytest.approx(2 * eq.gx[k], rel=1e-4, abs=1e-5)
+    for c in range(C):
+        for k in range(6):
+            dc = np.zeros((C, 6))
+            dc[c, k] = eps
+            num = (cost_at(dc, zero[1], zero[2]) - cost_at(-dc, zero[1], zero[2])) / (2 * eps)
+            assert num == pytest.approx(2 * eq.gc[c, k], rel=1e-5, abs=1e-6)
+    for m in np.r_[np.flatnonzero(bend)[:8], np.flatnonzero(~bend)[::29]]:
+        for k in range(3):
+            dp = np.zeros((prob.M, 3))
+            dp[m, k] = eps
+            num = (cost_at(zero[0], zero[1], dp) - cost_at(zero[0], zero[1], -dp)) / (2 * eps)
+            assert num == pytest.approx(2 * eq.gp[m, k], rel=1e-5, abs=1e-6)
+
+
 def test_bad_input_is_reported(scene):
     sc = scene
     with pytest.raises(ValueError, match="both"):

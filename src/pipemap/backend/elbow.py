@@ -74,6 +74,17 @@ def bend_of(a: Cylinder, b: Cylinder, vertex: np.ndarray) -> Bend:
     return Bend(vertex, d1, d2, angle)
 
 
+def model_bend(model, red_pose) -> Bend:
+    """The bend of an elbow's tee model (`pipemap.geometry.tee.TeeModel`, its vertex the model's I) given T_wc of
+    P_r: P_r lies before the vertex and P_b beyond it, which orients the axes."""
+    R, t = red_pose if isinstance(red_pose, tuple) else (red_pose[:3, :3], red_pose[:3, 3])
+    vertex = model.intersection((R, t))
+    a, b = model.red_cylinder((R, t)).direction, model.blue_cylinder((R, t)).direction
+    d1 = a if (vertex - t) @ a >= 0 else -a
+    d2 = b if (model.blue_pose((R, t))[:3, 3] - vertex) @ b >= 0 else -b
+    return Bend(vertex, d1, d2, float(np.degrees(np.arccos(np.clip(d1 @ d2, -1.0, 1.0)))))
+
+
 def bend_residuals(points: np.ndarray, bend: Bend, rho: float, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """(e (n,), de/drho (n, 1)) of points against the bend's wall of bend radius rho."""
     th = np.radians(bend.angle_deg)
@@ -87,6 +98,16 @@ def bend_residuals(points: np.ndarray, bend: Bend, rho: float, radius: float) ->
     e = dist - radius
     ds = -(q @ g) / s
     return e, ((s - rho) * (ds - 1.0) / np.maximum(dist, 1e-12))[:, None]
+
+
+def bend_normals(points: np.ndarray, bend: Bend, rho: float) -> np.ndarray:
+    """(n, 3) d e / d P: the unit normal of the bend's wall (the torus) at each point's nearest wall point."""
+    p = points - bend.centre(rho)
+    z = p @ bend.normal
+    q = p - np.outer(z, bend.normal)
+    s = np.maximum(np.linalg.norm(q, axis=1), 1e-12)
+    g = (1.0 - rho / s)[:, None] * q + z[:, None] * bend.normal
+    return g / np.maximum(np.linalg.norm(g, axis=1), 1e-12)[:, None]
 
 
 def on_arc(points: np.ndarray, bend: Bend, rho: float, margin_deg: float = ARC_MARGIN_DEG) -> np.ndarray:
@@ -141,4 +162,5 @@ def pipe_beyond(points: np.ndarray, a: Cylinder, b: Cylinder, bend: Bend, tolera
     return int(on_a.sum()), int(on_b.sum())
 
 
-__all__ = ["Bend", "ElbowFit", "bend_of", "bend_residuals", "on_arc", "fit_bend_radius", "pipe_beyond"]
+__all__ = ["Bend", "ElbowFit", "model_bend", "bend_normals", "bend_of", "bend_residuals", "on_arc", "fit_bend_radius",
+           "pipe_beyond"]

@@ -96,13 +96,20 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
             reports.append(JoinReport(j.id, f"kept the VO chaining: only {len(sel)} points seen in the junction"))
             continue
         rows = order[sel]  # the junction's points in the map
-        on_wall = None if j.type != "elbow" else ~_bend_points(out.points[rows], red.end, blue.start, j, radius)
+        on_wall, on_bend, rho = None, None, None
+        if j.type == "elbow":
+            rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
+            bend = bend_of(red.end, blue.start, j.centroid)
+            on_wall = ~on_arc(out.points[rows], bend, rho, margin_deg=-ARC_MARGIN_DEG)
+            # the torus term takes the points well inside the arc; those at its ends could be the straight pipe's
+            on_bend = on_arc(out.points[rows], bend, rho)
         fixed = [k - lo for k in range(lo, r_pose)]
         attached = [k - lo for k in range(b_pose + 1, hi + 1)]
         try:
             res = solve_junction(camera, out.poses[lo:hi + 1], out.points[rows], obs, red.end, blue.start,
                                  red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
-                                 radius=radius, settings=settings, cylinder_points=on_wall,
+                                 radius=radius, settings=settings, cylinder_points=on_wall, torus_points=on_bend,
+                                 bend_radius=rho if settings.bundle.elbow_torus else None,
                                  through=None if j.type == "elbow" else "auto")
         except (ValueError, np.linalg.LinAlgError) as exc:
             reports.append(JoinReport(j.id, f"kept the VO chaining: the tee solve failed ({exc})"))
@@ -123,16 +130,12 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
         j.method = "elbow" if j.type == "elbow" else "tee-model"
         j.through = res.through
         j.angle_deg = float(res.model.angle_deg)
+        if j.type == "elbow" and np.isfinite(res.bend_radius_m):
+            j.bend_radius_m = float(res.bend_radius_m)
         reports.append(JoinReport(j.id, "tee-model", n, len(sel), len(obs), float(res.rms_px),
                                   float(res.cylinder_rms_m), float(res.model.angle_deg), float(moved), float(angle),
                                   float(res.time_s)))
     return out, reports
-
-
-def _bend_points(points: np.ndarray, end, start, j, radius: float) -> np.ndarray:
-    """Which points lie on an elbow's bend (at its fitted bend radius, or two diameters before one is known)."""
-    rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
-    return on_arc(points, bend_of(end, start, j.centroid), rho, margin_deg=-ARC_MARGIN_DEG)
 
 
 __all__ = ["JoinReport", "join_sections"]

@@ -26,6 +26,14 @@ As in `pipemap.backend.bundle`: Huber costs by iteratively re-weighted Levenberg
 analytic Jacobians, the points eliminated by the Schur complement (Phi is the small global block),
 and MAD outlier passes between stages on the Huber-weighted signed reprojection errors.
 Pose updates are right perturbations (rho, phi) in camera axes.
+
+An elbow (`torus_points`, `bend_radius`): its straight pipes are the two cylinders, and the wall of its bend
+between them is a torus whose axis is the arc of bend radius rho tangent to both cylinders' axes
+(`pipemap.backend.elbow`). Its points join the wall term with their distance to that torus, and rho joins
+Phi in the global block: the bend's wall, which the camera sees for as long as it takes the turn, then
+holds the angle between the pipes and the poses through the turn, where the reprojections alone let
+the rotation drift (0.3 deg over a 30 deg sweeping bend, 10 mm at its vertex). The torus distance's
+derivatives by X are its unit normal; by Phi and rho they are taken by central differences (six numbers).
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from pipemap.backend.bundle import problem_inputs
+from pipemap.backend.elbow import bend_normals, bend_residuals, model_bend
 from pipemap.backend.end_cylinders import fit_end_cylinder, fit_end_cylinders
 from pipemap.camera.base import CameraModel
 from pipemap.config import BundleSettings
@@ -61,6 +70,7 @@ class JunctionState:
     t: np.ndarray  # (N, 3)
     points: np.ndarray  # (M, 3)
     model: TeeModel
+    rho: float = float("nan")  # an elbow's bend radius (nan for a tee)
 
 
 @dataclass
@@ -83,6 +93,7 @@ class JunctionResult:
     cylinder_rms_m: float  # RMS distance of the inlier points to their cylinder
     converged: bool
     outlier_counts: list[int] = field(default_factory=list)
+    bend_radius_m: float = float("nan")  # an elbow's, solved with Phi
 
     @property
     def params(self) -> np.ndarray:
@@ -122,7 +133,8 @@ class JunctionProblem:
 
     def __init__(self, camera: CameraModel, poses, points, observations, red, blue, *, red_pose: int,
                  blue_pose: int, fixed=(), attached=(), radius: float | None = None, model=None,
-                 cylinder_points: np.ndarray | None = None, through: str | None = "auto", tau: float = _B.tau,
+                 cylinder_points: np.ndarray | None = None, torus_points: np.ndarray | None = None,
+                 bend_radius: float | None = None, through: str | None = "auto", tau: float = _B.tau,
                  huber_px: float = _B.huber_px, huber_m: float = _B.huber_m, mad_k: float = _B.mad_k,
                  outlier_passes: int = _B.outlier_passes, max_iterations: int = _B.max_iterations):
         self.camera = camera
@@ -147,6 +159,11 @@ class JunctionProblem:
         self.tau, self.huber_px, self.huber_m = float(tau), float(huber_px), float(huber_m)
         self.mad_k, self.outlier_passes, self.max_iterations = float(mad_k), int(outlier_passes), int(max_iterations)
         self.cylinder_points = np.ones(M, bool) if cylinder_points is None else np.asarray(cylinder_points, bool)
+        self.torus_points = np.zeros(M, bool) if torus_points is None else np.asarray(torus_points, bool)
+        self.elbow = bend_radius is not None and bool(self.torus_points.any())
+        if self.elbow and np.any(self.torus_points & self.cylinder_points):
+            raise ValueError("a point cannot be on a straight pipe's wall and on the bend's")
+        self.n_global = 6 if self.elbow else 5
 
         Rr, tr, Rb, tb = R[self.red_index], t[self.red_index], R[self.blue_index], t[self.blue_index]
         red_p, r1 = _local_params(red, Rr, tr, "red")
@@ -165,7 +182,7 @@ class JunctionProblem:
         S_R, S_t = compose(*invert(Rb, tb), R[self.attached], t[self.attached])
         self.S_R, self.S_t = S_R, S_t
         self.S_adjoint = np.stack([adjoint_of_inverse((a, b)) for a, b in zip(S_R, S_t)])
-        self.initial = self._attach(JunctionState(R, t, X, tee))
+        self.initial = self._attach(JunctionState(R, t, X, tee, float(bend_radius) if self.elbow else float("nan")))
         if through not in ("auto", "red", "blue", None):
             raise ValueError(f"through must be 'auto', 'red', 'blue' or None, got {through!r}")
         self.through = None
@@ -187,15 +204,16 @@ class JunctionProblem:
         R, t = state.R.copy(), state.t.copy()
         Rb, tb = as_rt(state.model.blue_pose((R[self.red_index], t[self.red_index])))
         R[self.attached], t[self.attached] = compose(Rb, tb, self.S_R, self.S_t)
-        return JunctionState(R, t, state.points, state.model)
+        return JunctionState(R, t, state.points, state.model, state.rho)
 
     def _step(self, state: JunctionState, delta) -> JunctionState:
         dc, dx, dp = delta
         pose_delta = np.zeros((self.N, 6))
         pose_delta[self.free_index >= 0] = dc
         R, t = retract(state.R, state.t, pose_delta)
-        model = state.model.with_params(state.model.params + dx)
-        return self._attach(JunctionState(R, t, state.points + dp, model))
+        model = state.model.with_params(state.model.params + dx[:5])
+        rho = state.rho + dx[5] if self.elbow else state.rho
+        return self._attach(JunctionState(R, t, state.points + dp, model, rho))
 
     # -- residuals and Jacobians -------------------------------------------------------------------
 
@@ -217,9 +235,10 @@ class JunctionProblem:
                      reference: np.ndarray | None = None) -> np.ndarray:
         """(M,) bool: the point lies on the wall of its cylinder (see the module docstring); `reference`: the
         previous stage's wall points, over which the median and MAD are taken."""
-        d = self.cylinder_distance(state, on_blue)
-        ref = self.cylinder_points if reference is None else reference
-        return mad_inliers(d, self.mad_k, reference=ref, floor=self.huber_m) & self.cylinder_points
+        d = self.wall_distance(state, on_blue)
+        walls = self.cylinder_points | self.torus_points if self.elbow else self.cylinder_points
+        ref = walls if reference is None else reference
+        return mad_inliers(d, self.mad_k, reference=ref, floor=self.huber_m) & walls
 
     def _wall_context(self, state: JunctionState, reference: np.ndarray | None = None):
         on_blue = self.assign(state)
@@ -255,12 +274,41 @@ class JunctionProblem:
         d_red, d_blue = state.model.distances(state.points, self._red_pose(state), jacobians=False)
         return np.where(on_blue, d_blue, d_red)
 
+    def wall_distance(self, state: JunctionState, on_blue: np.ndarray) -> np.ndarray:
+        """Each point's distance to its wall: its cylinder's, or an elbow's bend's torus."""
+        d = self.cylinder_distance(state, on_blue)
+        if self.elbow:
+            d[self.torus_points] = self.torus_distance(state, self.torus_points)
+        return d
+
+    def torus_distance(self, state: JunctionState, which: np.ndarray, jacobians: bool = False):
+        """Distances of the points `which` to the bend's wall; with jacobians also d/dX (n, 3) and
+        d/d(Phi, rho) (n, 6)."""
+        red_pose = self._red_pose(state)
+        X = state.points[which]
+
+        def dist(model: TeeModel, rho: float) -> np.ndarray:
+            return bend_residuals(X, model_bend(model, red_pose), rho, model.radius)[0]
+
+        d = dist(state.model, state.rho)
+        if not jacobians:
+            return d
+        J_X = bend_normals(X, model_bend(state.model, red_pose), state.rho)
+        J_g = np.empty((len(X), 6))
+        for i, eps in enumerate((1e-6,) * 5 + (1e-7,)):
+            step = np.zeros(6)
+            step[i] = eps
+            plus = dist(state.model.with_params(state.model.params + step[:5]), state.rho + step[5])
+            minus = dist(state.model.with_params(state.model.params - step[:5]), state.rho - step[5])
+            J_g[:, i] = (plus - minus) / (2 * eps)
+        return d, J_X, J_g
+
     def cost(self, state: JunctionState, inliers: np.ndarray, on_blue: np.ndarray, on_wall: np.ndarray) -> float:
         e = self.reprojection(state)[inliers]
         c = float(huber_cost(np.linalg.norm(e, axis=1), self.huber_px).sum())
         if self.tau > 0:
             on = (np.bincount(self.obs.point[inliers], minlength=self.M) > 0) & on_wall
-            d = self.cylinder_distance(state, on_blue)[on]
+            d = self.wall_distance(state, on_blue)[on]
             c += self.tau * float(huber_cost(np.abs(d), self.huber_m).sum())
         return c
 
@@ -287,15 +335,22 @@ class JunctionProblem:
         JQ = state.model.q_jacobian()[0]  # (6, 5)
         a = st.att
         J_tee = J_pose[a] @ (self.S_adjoint[self.attached_index[st.cam[a]]] @ JQ)  # (Ka, 2, 5)
+        if self.elbow:  # rho moves no camera
+            J_tee = np.concatenate([J_tee, np.zeros((len(J_tee), 2, 1))], axis=2)
+        g = self.n_global
         wJt = w[a, None, None] * J_tee
-        Ux = wJt.reshape(-1, 5).T @ J_tee.reshape(-1, 5)
-        gx = wJt.reshape(-1, 5).T @ e[a].reshape(-1)
+        Ux = wJt.reshape(-1, g).T @ J_tee.reshape(-1, g)
+        gx = wJt.reshape(-1, g).T @ e[a].reshape(-1)
         Wx = st.to_point_att(np.swapaxes(wJt, 1, 2) @ J_point[a])
         if self.tau > 0:
             d_red, d_blue, Jr_X, Jb_X, Jb_phi = state.model.distances(state.points, self._red_pose(state))
             d = np.where(on_blue, d_blue, d_red)
             Jd_X = np.where(on_blue[:, None], Jb_X, Jr_X)
             Jd_phi = np.where(on_blue[:, None], Jb_phi, 0.0)
+            if self.elbow:
+                Jd_phi = np.concatenate([Jd_phi, np.zeros((self.M, 1))], axis=1)
+                tor = self.torus_points
+                d[tor], Jd_X[tor], Jd_phi[tor] = self.torus_distance(state, tor, jacobians=True)
             wd = np.where(st.active & on_wall, self.tau * huber_weights(np.abs(d), self.huber_m), 0.0)
             wJd = wd[:, None] * Jd_X
             V += wJd[:, :, None] * Jd_X[:, None, :]
@@ -308,7 +363,7 @@ class JunctionProblem:
         gp[~st.active] = 0.0
         Wx[~st.active] = 0.0
         eq = NormalEquations(U, gc, V, gp, W, st.schur.obs_cam, st.schur.obs_pt, Ux, gx, Wx)
-        n = 6 * self.n_free + 5
+        n = 6 * self.n_free + g
         eq.H_extra = np.zeros((n, n))
         eq.H_extra[np.arange(6 * self.n_free, n), np.arange(6 * self.n_free, n)] = _PHI_RIDGE * (1.0 + np.abs(Ux).max())
         eq.g_extra = np.zeros(n)
@@ -357,14 +412,14 @@ class JunctionProblem:
         e = self.reprojection(state)[inliers]
         rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if len(e) else float("nan")
         point_in = np.bincount(self.obs.point[inliers], minlength=self.M) >= 2
-        d = self.cylinder_distance(state, on_blue)[point_in & on_wall]
+        d = self.wall_distance(state, on_blue)[point_in & on_wall]
         cyl_rms = float(np.sqrt(np.mean(d**2))) if d.size else float("nan")
         red_pose = self._red_pose(state)
         poses = to_matrix(state.R, state.t)
         blue = poses[self.blue_index]
         return JunctionResult(poses, state.points.copy(), state.model.canonical(), state.model.intersection(red_pose),
                               blue, blue @ np.linalg.inv(self.blue_initial), on_blue, on_wall, self.through, inliers,
-                              point_in, history, iterations, seconds, rms, cyl_rms, converged, counts)
+                              point_in, history, iterations, seconds, rms, cyl_rms, converged, counts, state.rho)
 
 
 class _Stage:
