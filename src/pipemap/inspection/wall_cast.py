@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pipemap.geometry.torus import ray_torus
+from pipemap.geometry.torus import TorusPiece
 from pipemap.inspection.route import SIGHT_RADII, Route
 
 OPEN_END_RADII = 10.0  # how far the first and last pieces, and through pipes into a tee's stub, reach on
@@ -49,16 +49,9 @@ class Tube:
 
 
 @dataclass(frozen=True)
-class Bend:
-    """An elbow's solid torus piece: centre, unit normal (the arc turns anticlockwise about it), e1 (from the
-    centre to the arc's start), bend radius, angle turned, tube radius and its route segment's name."""
+class Bend(TorusPiece):
+    """An elbow's solid torus piece (`geometry.torus.TorusPiece`) with its route segment's name."""
 
-    centre: np.ndarray
-    normal: np.ndarray
-    e1: np.ndarray
-    bend_radius: float
-    angle: float
-    radius: float
     name: str = ""
 
 
@@ -124,24 +117,6 @@ def _tube_exit(tube: Tube, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return np.where(ok, t, np.inf)
 
 
-def _bend_exit(bend: Bend, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Distance (n,) to where each ray leaves the torus piece's wall within its angle (inf: nowhere ahead)."""
-    e1, e3 = bend.e1, bend.normal
-    e2 = np.cross(e3, e1)
-    frame = np.stack([e1, e2, e3])  # rows: the torus frame's axes
-    o = frame @ (origin - bend.centre) / bend.bend_radius
-    d = dirs @ frame.T
-    roots = ray_torus(o, d.T, bend.radius / bend.bend_radius) * bend.bend_radius  # (n, 4) ascending, NaN absent
-    best = np.full(len(dirs), np.inf)
-    for k in (1, 3):  # leaving the tube: the second root of each pair
-        t = roots[:, k]
-        p = o + (t / bend.bend_radius)[:, None] * d
-        ang = np.mod(np.arctan2(p[:, 1], p[:, 0]), 2 * np.pi)
-        ok = np.isfinite(t) & (t > 0) & (ang <= bend.angle)
-        best = np.where(ok & (t < best), t, best)
-    return best
-
-
 def _inside(points: np.ndarray, tubes: list[Tube], bends: list[Bend]) -> np.ndarray:
     """(n, shapes) whether each point lies deeper than INSIDE_MARGIN_M inside each tube, then each bend."""
     cols = []
@@ -166,7 +141,7 @@ def cast_to_wall(origin, dirs, tubes: list[Tube], bends: list[Bend]) -> tuple[np
     the shape met (n,): an index into tubes + bends, -1 for none."""
     origin = np.asarray(origin, float)
     dirs = np.atleast_2d(np.asarray(dirs, float))
-    shapes = [(_tube_exit, s) for s in tubes] + [(_bend_exit, s) for s in bends]
+    shapes = [(_tube_exit, s) for s in tubes] + [(Bend.wall_exit, s) for s in bends]
     shape = np.full(len(dirs), -1)
     if not shapes:
         return np.full((len(dirs), 3), np.nan), np.zeros(len(dirs), bool), shape
