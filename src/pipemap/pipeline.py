@@ -349,7 +349,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
                                       settings.deformation)
 
             rows, deformation = measure_deformation(net.map, [WallPiece.from_dict(d) for d in net.wall_pieces],
-                                                    dataset.radius_m, settings, dense)
+                                                    dataset.radius_m, settings, dense, net.route)
             write_deformation(tmp, rows, dataset.radius_m)
         stage("writing")
         seconds = dict(front.seconds)
