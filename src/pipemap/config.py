@@ -289,7 +289,8 @@ class DeformationSettings(_Section):
     max_ray_error_deg: float = Field(0.15, gt=0, description="sparse re-triangulation: drop points whose ray "
                                      "misses an observation by more than this")
     dense: bool = Field(False, description="also search the wall's radius densely by photo-consistency (cylinder "
-                        "sweep; experimental: several percentage points of ovality off on deformed-pipe)")
+                        "sweep; experimental: on deformed-pipe its cells' radii are 5-12 mm off, so ovality reads "
+                        "several percentage points off; wall_depth.py says why)")
     dense_search_m: float = Field(0.02, gt=0, description="dense search: +- this around the a-priori radius")
     dense_step_m: float = Field(0.0005, gt=0, description="dense search: radius step")
     dense_cell_m: float = Field(0.003, gt=0, description="dense search: wall cell size along and around")
