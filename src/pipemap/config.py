@@ -270,9 +270,21 @@ class DeformationSettings(_Section):
     min_points: int = Field(40, ge=8, description="fewest points a slice needs (after outliers)")
     min_cover_deg: float = Field(300.0, gt=0, le=360, description="a slice's points must cover this much of the "
                                  "circle (in 10 deg bins)")
-    bin_deg: float = Field(8.0, gt=0, le=45, description="width around of the cells whose medians give the "
-                           "largest inward and outward deviation (a dent)")
-    dent_cell_m: float = Field(0.015, gt=0, description="length along of those cells (sparse points)")
+    bin_deg: float = Field(8.0, gt=0, le=45, description="dense ring: width around of the cells whose medians give "
+                           "the largest inward and outward deviation (a dent)")
+    dent_grid_m: float = Field(0.01, gt=0, description="sparse wall field: node spacing along and around at which "
+                               "the deviation is estimated")
+    dent_neighbours: tuple[int, ...] = Field((20, 40, 80), min_length=1, description="sparse wall field: the "
+                                             "neighbourhoods (nearest points) of the local quadratic fits, of which "
+                                             "ICI picks one per node")
+    dent_ici_gamma: float = Field(1.0, gt=0, description="sparse wall field: ICI keeps the widest neighbourhood "
+                                  "whose estimate +- this many SDs meets every narrower one's")
+    dent_outlier_mads: float = Field(5.0, gt=0, description="sparse wall field: points farther than this many robust "
+                                     "SDs from their neighbours' local quadratic are dropped")
+    dent_reach_m: float = Field(0.02, gt=0, description="sparse wall field: no value where the nearest point lies "
+                                "farther than this (a gap)")
+    centre_window_m: float = Field(0.25, gt=0, description="the slices' centre offsets are smoothed along the piece "
+                                   "over +- this (the axis bends slowly; a dent is local)")
     outlier_mads: float = Field(4.0, gt=0, description="points farther than this many MADs from a slice's fit are "
                                 "dropped")
     min_parallax_deg: float = Field(2.0, gt=0, description="sparse re-triangulation: the widest angle between a "
@@ -280,7 +292,8 @@ class DeformationSettings(_Section):
     max_ray_error_deg: float = Field(0.15, gt=0, description="sparse re-triangulation: drop points whose ray "
                                      "misses an observation by more than this")
     dense: bool = Field(False, description="also search the wall's radius densely by photo-consistency (cylinder "
-                        "sweep; experimental: several percentage points of ovality off on deformed-pipe)")
+                        "sweep; experimental: on deformed-pipe its cells' radii are 5-12 mm off, so ovality reads "
+                        "several percentage points off; wall_depth.py says why)")
     dense_search_m: float = Field(0.02, gt=0, description="dense search: +- this around the a-priori radius")
     dense_step_m: float = Field(0.0005, gt=0, description="dense search: radius step")
     dense_cell_m: float = Field(0.003, gt=0, description="dense search: wall cell size along and around")

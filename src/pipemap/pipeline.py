@@ -350,7 +350,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
                                       settings.deformation)
 
             straight = [WallPiece.from_dict(d) for d in net.wall_pieces if d.get("kind", "line") == "line"]
-            rows, deformation = measure_deformation(net.map, straight, dataset.radius_m, settings, dense)
+            rows, deformation = measure_deformation(net.map, straight, dataset.radius_m, settings, dense, net.route)
             write_deformation(tmp, rows, dataset.radius_m)
         stage("writing")
         seconds = dict(front.seconds)

@@ -50,3 +50,16 @@ def loop_case(tmp_path_factory) -> LoopCase:
 def loop_map(loop_case) -> AppearanceMap:
     c = loop_case
     return build_appearance(c.dataset, c.indices, c.poses, c.pieces, AppearanceSettings())
+
+
+@pytest.fixture(scope="session")
+def deformed_run(tmp_path_factory):
+    """The deformed-pipe preset's tiny route (pieces 0.4 m; a 3 % and a 6 % oval piece, a 10 mm dent) at
+    480 x 360, a frame every 2.5 cm, through `pipemap run`: (dataset, result folder)."""
+    from pipemap.config import load_settings
+    from pipemap.pipeline import run_pipeline
+
+    base = tmp_path_factory.mktemp("deformed")
+    data = simulate("deformed-pipe", base / "data", route="tiny", width=480, height=360, spacing_m=0.025, seed=0)
+    run_pipeline(data, base / "out", load_settings())
+    return data, base / "out"

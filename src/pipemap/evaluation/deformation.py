@@ -103,8 +103,10 @@ def _figures(per: dict, lines: list[dict]) -> dict:
                                 "median_error_pp": round(float(np.median(ov) - shape["ovality_pct"]), 3),
                                 "worst_error_pp": round(float(err[np.argmax(np.abs(err))]), 3)})
         for d in shape["dents"]:
-            inward = np.array([float(s["max_inward_m"]) for s in slices])
-            k = int(np.argmax(inward))
+            inward = np.array([float(s["max_inward_m"] or "nan") for s in slices])
+            if not np.isfinite(inward).any():
+                continue
+            k = int(np.nanargmax(inward))
             fig["dents"].append({"piece": pid, "true_depth_m": d["depth_m"], "measured_m": round(float(inward[k]), 5),
                                  "error_m": round(float(inward[k] - d["depth_m"]), 5),
                                  "at_h_m": round(float(slices[k]["truth_h_m"]), 3), "true_h_m": d["h_m"]})

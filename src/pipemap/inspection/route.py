@@ -258,6 +258,23 @@ def frame_chainage(frame_count: int, keyframe_frames, keyframe_chainage) -> np.n
     return out
 
 
+def route_segment_of(route: Route, piece) -> int:
+    """The route segment that follows a wall piece (by name; else the one nearest its middle)."""
+    for i, seg in enumerate(route.segments):
+        if seg.name == piece.name:
+            return i
+    return int(route.to_route((piece.start + piece.end) / 2, wall=False)[3][0])
+
+
+def piece_start_chainage(route: Route, piece) -> float:
+    """Chainage of a wall piece's axis start on its route segment: h along the piece is at this + h."""
+    i = route_segment_of(route, piece)
+    seg = route.segments[i]
+    if seg.kind == "arc":
+        return float(route.to_route(piece.start, wall=False, segment=[i])[0][0])
+    return float(seg.chainage_start + (piece.start - seg.start) @ piece.axis)
+
+
 def write_route(path: Path, route: Route) -> None:
     atomic_write_text(Path(path), json.dumps(route.to_dict(), indent=2) + "\n")
 
@@ -295,4 +312,5 @@ def _vec(v) -> np.ndarray:
     return a
 
 
-__all__ = ["Route", "RouteSegment", "FORMAT", "write_route", "read_route", "frame_chainage"]
+__all__ = ["Route", "RouteSegment", "FORMAT", "write_route", "read_route", "frame_chainage", "route_segment_of",
+           "piece_start_chainage"]

@@ -45,6 +45,7 @@ from pipemap.mapping.wall import (
 )
 from pipemap.mapping.unrolled import write_unrolled
 from pipemap.output import atomic_write_bytes
+from pipemap.inspection.route import piece_start_chainage, route_segment_of
 
 # Wall farther from the camera than this many radii / sin(min_theta) is not sampled. In a straight
 # pipe the band ends at (r + offset) / sin(min_theta); farther wall is seen only at grazing angles
@@ -306,21 +307,6 @@ def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out.ravel()[:n].astype(np.float64)
 
 
-def _route_segment(route, piece: WallPiece) -> int:
-    """The route segment that follows `piece` (by name; else the one nearest its middle)."""
-    for i, seg in enumerate(route.segments):
-        if seg.name == piece.name:
-            return i
-    return int(route.to_route((piece.start + piece.end) / 2, wall=False)[3][0])
-
-
-def _start_chainage(route, piece: WallPiece) -> float:
-    """Chainage of the piece's axis start on its route segment."""
-    seg = route.segments[_route_segment(route, piece)]
-    return float(route.to_route(piece.start, wall=False, segment=[_route_segment(route, piece)])[0][0]) \
-        if seg.kind == "arc" else float(seg.chainage_start + (piece.start - seg.start) @ piece.axis)
-
-
 def write_appearance_ply(path: str | Path, points: np.ndarray, intensity: np.ndarray, coords=None) -> None:
     """appearance.ply: binary little-endian PLY, float32 x y z and uchar intensity, written atomically;
     `coords` (chainage, clock_deg) add float32 properties `chainage` and `clock_deg` per point."""
@@ -372,12 +358,12 @@ def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_w
     points, intensity = amap.points()
     coords = None
     if route is not None:
-        segment = np.concatenate([np.full(int(pm.seen.sum()), _route_segment(route, pm.piece), int)
+        segment = np.concatenate([np.full(int(pm.seen.sum()), route_segment_of(route, pm.piece), int)
                                   for pm in amap.pieces]) if amap.pieces else np.zeros(0, int)
         chainage, clock, _, _ = route.to_route(points, wall=True, segment=segment)
         coords = (chainage, clock)
     write_appearance_ply(folder / "appearance.ply", points, intensity, coords)
-    starts = None if route is None else {pm.piece.name: _start_chainage(route, pm.piece) for pm in amap.pieces}
+    starts = None if route is None else {pm.piece.name: piece_start_chainage(route, pm.piece) for pm in amap.pieces}
     images = write_unrolled(folder / "unrolled", amap, chainage_of_start=starts)
     return {
         "appearance_points": int(len(points)),

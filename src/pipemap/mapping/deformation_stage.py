@@ -6,21 +6,24 @@ from __future__ import annotations
 
 import io
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from pipemap.backend.free_points import free_points
 from pipemap.config import Settings
+from pipemap.inspection.route import piece_start_chainage
 from pipemap.mapping.deformation import SliceProfile, deformation_csv, sparse_profiles, summary
 from pipemap.mapping.wall import WallPiece
 from pipemap.output import atomic_write_bytes, atomic_write_text
 
 
 def measure_deformation(pipe_map, pieces: list[WallPiece], radius: float, settings: Settings,
-                        dense=None) -> tuple[list[SliceProfile], dict]:
+                        dense=None, route=None) -> tuple[list[SliceProfile], dict]:
     """The slices of the unrolled (straight) pieces, sparse then dense, and figures for run.json.
-    `dense(piece) -> list[SliceProfile]` measures one piece densely (None: sparse only)."""
+    `dense(piece) -> list[SliceProfile]` measures one piece densely (None: sparse only); with `route`
+    (inspection.Route) every slice gets its chainage."""
     s = settings.deformation
     t0 = time.perf_counter()
     points, valid = free_points(pipe_map.keyframes, pipe_map.poses, pipe_map.point_tracks,
@@ -34,6 +37,9 @@ def measure_deformation(pipe_map, pieces: list[WallPiece], radius: float, settin
     if dense is not None and s.dense:
         for piece in straight:
             rows += dense(piece)
+    if route is not None:
+        start = {p.name: piece_start_chainage(route, p) for p in straight}
+        rows = [replace(r, chainage_m=round(start[r.piece] + r.h_m, 4)) for r in rows]
     record = summary(rows)
     record.update(free_points=int(valid.sum()), points=int(len(valid)),
                   seconds={"sparse": round(t1 - t0, 3), "dense": round(time.perf_counter() - t1, 3)})

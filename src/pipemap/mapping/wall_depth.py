@@ -9,6 +9,15 @@ brightness differs between views; ZNCC ignores gain and offset). Each cell's rad
 cost, refined by a parabola through its neighbours. The views span the widest range of distances to the
 ring: a radial move of the wall shifts its image by different amounts in near and far views.
 Everything is vectorised over cells and radii; the loop runs over the views.
+
+Known limit (measured on deformed-pipe, short route, 640 x 480): the cells' radii are not yet a measurement.
+Per view pair at the best radius ZNCC is only 0.3-0.7 and the median radius error 7-12 mm in a +-20 mm search,
+for every pair from 5 cm to 45 cm apart, so neither the far views' grazing footprint alone nor the choice of
+views decides it (views within 1 or 1.5 radii: the same); blurring every view to a common footprint made it
+worse. A 1 mm radial move shifts the ring's image by only about 0.25 px between the nearest pair, while a 3 mm
+cell is 1-1.5 px across: the window of 5 x 5 point-sampled cells holds too little texture at that precision,
+and the reference view sees the ring 75-95 deg off its axis. Next: per-view sampling at each cell's footprint
+(area, not point), a reference view at about 45 deg, and sub-pixel matching along the epipolar direction.
 """
 
 from __future__ import annotations
