@@ -128,7 +128,7 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
         angle = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1)))
         # The blue section and everything after it move rigidly; the junction's own poses and points take
         # the solve's values.
-        out.move_after(b_pose - 1, T)
+        out.move_after(min(b_pose, blue.first) - 1, T)  # the whole blue section, its cylinders with it
         out.poses[lo:hi + 1] = res.poses
         good = res.point_inliers & np.all(np.isfinite(res.points), axis=1)
         out.points[rows[good]] = res.points[good]
