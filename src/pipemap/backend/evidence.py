@@ -142,7 +142,7 @@ def fit_elbow_bends(pipe_map: PipeMap, radius: float, settings: Settings) -> Pip
     tids = out.point_tracks[order]
     for j in out.junctions:
         end, start, _ = _end_cylinders(out, j)
-        if j.type != "elbow" or end is None or start is None:
+        if j.type != "elbow" or end is None or start is None or j.modelled:
             continue
         bend = bend_of(end, start, j.centroid)
         j.angle_deg = bend.angle_deg

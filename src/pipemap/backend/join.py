@@ -25,9 +25,12 @@ import numpy as np
 from pipemap.backend.bundle import Observations
 from pipemap.backend.elbow import ARC_MARGIN_DEG, bend_of, on_arc
 from pipemap.backend.junction import solve_junction
+from pipemap.backend.end_cylinders import fit_end_cylinder
+from pipemap.backend.network_map import section_points
 from pipemap.backend.pipe_map import PipeMap
 from pipemap.camera.base import CameraModel
 from pipemap.config import Settings
+from pipemap.errors import PipemapError
 from pipemap.frontend.tracks import Keyframe
 
 
@@ -88,6 +91,9 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
             reports.append(JoinReport(j.id, "kept the VO chaining: no end cylinder on one side"))
             continue
         r_pose, b_pose = red.last, blue.first
+        red_cyl, blue_cyl = red.end, blue.start
+        if j.type == "elbow":
+            r_pose, b_pose, red_cyl, blue_cyl = _beside_the_bend(out, j, red, blue, radius, settings)
         lo = max(red.first, r_pose - hold + 1)
         hi = min(blue.last, b_pose + attach - 1)
         sel, obs = _observations(out.keyframes, active, lo, hi, tids)
@@ -99,14 +105,14 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
         on_wall, on_bend, rho = None, None, None
         if j.type == "elbow":
             rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
-            bend = bend_of(red.end, blue.start, j.centroid)
+            bend = bend_of(red_cyl, blue_cyl, j.centroid)
             on_wall = ~on_arc(out.points[rows], bend, rho, margin_deg=-ARC_MARGIN_DEG)
             # the torus term takes the points well inside the arc; those at its ends could be the straight pipe's
             on_bend = on_arc(out.points[rows], bend, rho)
         fixed = [k - lo for k in range(lo, r_pose)]
         attached = [k - lo for k in range(b_pose + 1, hi + 1)]
         try:
-            res = solve_junction(camera, out.poses[lo:hi + 1], out.points[rows], obs, red.end, blue.start,
+            res = solve_junction(camera, out.poses[lo:hi + 1], out.points[rows], obs, red_cyl, blue_cyl,
                                  red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
                                  radius=radius, settings=settings, cylinder_points=on_wall, torus_points=on_bend,
                                  bend_radius=rho if settings.bundle.elbow_torus else None,
@@ -122,7 +128,7 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
         angle = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1)))
         # The blue section and everything after it move rigidly; the junction's own poses and points take
         # the solve's values.
-        out.move_after(b_pose - 1, T)
+        out.move_after(min(b_pose, blue.first) - 1, T)  # the whole blue section, its cylinders with it
         out.poses[lo:hi + 1] = res.poses
         good = res.point_inliers & np.all(np.isfinite(res.points), axis=1)
         out.points[rows[good]] = res.points[good]
@@ -130,12 +136,46 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
         j.method = "elbow" if j.type == "elbow" else "tee-model"
         j.through = res.through
         j.angle_deg = float(res.model.angle_deg)
-        if j.type == "elbow" and np.isfinite(res.bend_radius_m):
-            j.bend_radius_m = float(res.bend_radius_m)
+        if j.type == "elbow":
+            j.bend_radius_m = float(res.bend_radius_m) if np.isfinite(res.bend_radius_m) else j.bend_radius_m
+            j.modelled = True
         reports.append(JoinReport(j.id, "tee-model", n, len(sel), len(obs), float(res.rms_px),
                                   float(res.cylinder_rms_m), float(res.model.angle_deg), float(moved), float(angle),
                                   float(res.time_s)))
     return out, reports
+
+
+def _beside_the_bend(pipe_map: PipeMap, j, red, blue, radius: float, settings: Settings):
+    """(P_r, P_b, C_r, C_b) of an elbow's solve: the red section's last keyframe before its bend begins and the
+    blue one's first after the bend ends, each with its end cylinder fitted from there. A tight elbow looks
+    straight again before the camera has left its arc (the next pipe's far end is back in view): its blue
+    section starts up to a quarter of the arc early (0.11 m of a 45 deg elbow's 0.47 m), and a cylinder fitted
+    over its first metre takes in some of the bend's wall. The keyframes in the arc are solved with the bend."""
+    rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
+    bend = bend_of(red.end, blue.start, j.centroid)
+    T = rho * np.tan(np.radians(bend.angle_deg) / 2)
+    c = pipe_map.poses[:, :3, 3]
+    before = np.arange(red.first, red.last + 1)
+    before = before[(c[before] - (bend.vertex - T * bend.d1)) @ bend.d1 <= 0]
+    after = np.arange(blue.first, blue.last + 1)
+    after = after[(c[after] - (bend.vertex + T * bend.d2)) @ bend.d2 >= 0]
+    r_pose = int(before[-1]) if len(before) else red.last
+    b_pose = int(after[0]) if len(after) else blue.first
+    fits = []
+    for pose, end, sec, ends in ((r_pose, "last", red, red.end), (b_pose, "first", blue, blue.start)):
+        if pose in (red.last, blue.first):
+            fits.append(ends)
+            continue
+        ks = np.arange(sec.first, pose + 1) if end == "last" else np.arange(pose, sec.last + 1)
+        order = np.argsort(pipe_map.point_tracks)
+        pts = pipe_map.points[order[section_points(pipe_map.keyframes, int(ks[0]), int(ks[-1]),
+                                                   pipe_map.point_tracks[order])]]
+        try:
+            fits.append(fit_end_cylinder(pipe_map.poses[ks], pts, radius, end=end,
+                                          huber=settings.bundle.huber_m).cylinder)
+        except (PipemapError, ValueError, np.linalg.LinAlgError):
+            return red.last, blue.first, red.end, blue.start
+    return r_pose, b_pose, fits[0], fits[1]
 
 
 __all__ = ["JoinReport", "join_sections"]

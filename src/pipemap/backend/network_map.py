@@ -76,6 +76,7 @@ class MappedJunction:
     opening: dict | None = None  # the side opening that placed a straight-through pass (SideOpening.to_dict)
     bend_radius_m: float = float("nan")  # an elbow's, where its bend's wall fixed it
     branch: np.ndarray | None = None  # world unit direction from the centre into the side branch (side opening)
+    modelled: bool = False  # an elbow solved with its bend's wall (backend/join.py): angle and bend radius from it
 
     def to_dict(self) -> dict:
         d = {"id": self.id, "type": self.type, "centroid": [round(float(v), 6) for v in self.centroid],
