@@ -84,6 +84,7 @@ class NetworkResult:
     quality: RunVerdict | None = None  # the sections' self-checks
     dropped: list[DroppedPass] = field(default_factory=list)  # junction passes with no turn and no side opening
     route: Route | None = None  # the axis followed, with chainage and 12 o'clock (inspection/route.py)
+    bends: np.ndarray | None = None  # (keyframes,) bool: in a bend the images did not classify (frontend/turning.py)
 
     @property
     def sections(self) -> list[MappedSection]:
@@ -190,14 +191,27 @@ def section_bend(settings: Settings) -> tuple[float, float, float, float] | None
     return b.bend_knot_m, float(np.radians(b.bend_kink_deg)), float(1.0 / np.sqrt(b.tau)), OFFSET_SIGMA_M
 
 
+def bend_labels(labels: dict, keyframe_indices: np.ndarray, bends: np.ndarray | None) -> dict:
+    """frames.csv's `bend` for the frames the images classified straight from each keyframe in a bend the
+    camera's turn showed (frontend/turning.py) up to the next keyframe."""
+    if bends is None or not np.any(bends):
+        return {}
+    idx = np.asarray(keyframe_indices, int)
+    ends = np.r_[idx[1:], idx[-1] + 1]
+    return {i: "bend" for k in np.flatnonzero(bends) for i in range(int(idx[k]), int(ends[k]))
+            if labels.get(i) == "straight"}
+
+
 def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> NetworkResult:
     """Stage 2: metric VO of the straight sections (III-C) chained through the junctions, then the
     sections' cylinders and the tee centres (III-D), the tee model and loop closure on the map."""
     vo = StraightVO(dataset.camera, dataset.radius_m, settings)
     junction = keyframe_labels(front.keyframes, front.classes)
     c = settings.classification
+    bends = np.zeros(len(junction), bool)
     if c.turn_deg is not None:
-        junction |= turning_keyframes(front.keyframes, c.turn_window_keyframes, c.turn_deg, junction)
+        bends = turning_keyframes(front.keyframes, c.turn_window_keyframes, c.turn_deg, junction) & ~junction
+        junction |= bends
     for kf, j in zip(front.keyframes, junction):
         vo.add(kf, junction=bool(j))
     result = vo.finish()
@@ -243,7 +257,7 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
     seconds["loop_closure"] = revisit.seconds
-    return NetworkResult(result, pipe_map, seconds, joins, revisit, tees, quality, dropped, axis_route)
+    return NetworkResult(result, pipe_map, seconds, joins, revisit, tees, quality, dropped, axis_route, bends)
 
 
 def write_junctions(path: Path, junctions: list[MappedJunction], route: Route | None = None) -> None:
@@ -273,6 +287,7 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
     write_sparse_ply(folder / "sparse.ply", net.map.points)
     classes = front.classes
     labels = dict(zip(np.asarray(classes.indices).tolist(), classes.labels))
+    labels.update(bend_labels(labels, result.indices, net.bends))
     labels.update({i: "repeated" for i in front.footage.repeated})
     write_frames_csv(folder / "frames.csv", len(dataset), result.indices.tolist(), labels, chainage)
     seconds = dict(seconds)
