@@ -113,7 +113,9 @@ def read_walls(result_dir: Path) -> list[UnrolledWall]:
     folder = Path(result_dir) / "unrolled"
     if not folder.is_dir():
         return []
-    return [UnrolledWall.from_sidecar(png) for png in sorted(folder.glob("*.png"))]
+    walls = [UnrolledWall.from_sidecar(png) for png in sorted(folder.glob("*.png"))]
+    # in route order where the sidecars carry chainage (an elbow's wall between the pipes either side of it)
+    return sorted(walls, key=lambda w: (w.chainage0_m is None, w.chainage0_m or 0.0, w.name))
 
 
 def place_observation(obs: dict, walls: list[UnrolledWall]) -> dict | None:
