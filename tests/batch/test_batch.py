@@ -128,3 +128,16 @@ def test_ctrl_c_leaves_only_complete_result_folders(batch_data, tmp_path):
         assert rows[name]["status"] in ("mapped", "interrupted")
         if name in left:
             assert json.loads((out / name / "run.json").read_text())["frames"] == 40
+
+
+def test_batch_input_problems_are_one_line(batch_data, tmp_path):
+    data, _ = batch_data
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    cases = [(["--out", str(tmp_path / "mine")], "holds no batch.csv of an earlier batch"),
+             (["--out", str(tmp_path / "o"), "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--workers: sets"),
+             (["--out", str(tmp_path / "o"), "--set", "batch.retries=-1"], "--set: batch.retries")]
+    for extra, words in cases:
+        res = runner.invoke(app, ["batch", str(data / "a"), *extra])
+        assert res.exit_code == 2 and words in res.output and "Traceback" not in res.output, res.output
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "keep" and not (tmp_path / "o").exists()
