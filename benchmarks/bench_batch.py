@@ -1,7 +1,7 @@
 """`pipemap batch` on a 2-worker local Dask cluster against the plain loop of `pipemap run`, one after another.
 
     python benchmarks/bench_batch.py [--runs 4] [--preset fisheye-straight] [--width 480] [--height 360]
-                                     [--frames 120] [--workers 2] [--data /tmp/pipemap-bench-batch]
+                                     [--frames 300] [--workers 2] [--data /tmp/pipemap-bench-batch]
 
 Renders --runs datasets of the preset (seeds 0, 1, ...; cached under --data), then, end to end as a user
 would type them, each a fresh process timed by its wall clock:
@@ -13,8 +13,9 @@ would type them, each a fresh process timed by its wall clock:
   3. the same batch command again (every run complete: nothing to map);
   4. the batch with a copy of the first dataset whose mask image is corrupt added to the manifest.
 Compares every result folder of 2 with 1 (results.result_differences: files byte for byte, JSON as data
-without its wall-time keys). Prints and writes benchmarks/results/batch.json, with the load average before
-and after (other processes on the machine slow both sides).
+without its wall-time keys). Prints and writes benchmarks/results/batch.json, with the CPU seconds of 1 and
+2 (the batch's worker processes included) and the load average before and after: other processes on the
+machine slow both sides, and a batch of two workers takes a larger share from them than one run does.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import csv
 import json
 import os
 import platform
+import resource
 import shutil
 import subprocess
 import sys
@@ -58,10 +60,18 @@ def corrupt_copy(root: Path) -> Path:
     return bad
 
 
-def timed(cmd: list[str]) -> tuple[float, subprocess.CompletedProcess]:
+CPU_S: dict[str, float] = {}  # CPU seconds of each kind of command and its processes (workers included)
+
+
+def timed(cmd: list[str], kind: str = "") -> tuple[float, subprocess.CompletedProcess]:
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True)
-    return time.perf_counter() - start, done
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    CPU_S[kind] = CPU_S.get(kind, 0.0) + cpu
+    return wall, done
 
 
 def pipemap(*args) -> list[str]:
@@ -79,7 +89,7 @@ def main() -> None:
     ap.add_argument("--preset", default="fisheye-straight")
     ap.add_argument("--width", type=int, default=480)
     ap.add_argument("--height", type=int, default=360)
-    ap.add_argument("--frames", type=int, default=120)
+    ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--data", default="/tmp/pipemap-bench-batch")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "batch.json"))
@@ -94,11 +104,11 @@ def main() -> None:
 
     seq_runs = []
     for root in roots:
-        seconds, done = timed(pipemap("run", root, "--out", work / "seq" / root.name))
+        seconds, done = timed(pipemap("run", root, "--out", work / "seq" / root.name), "sequential")
         assert done.returncode == 0, done.stderr
         seq_runs.append(round(seconds, 2))
     sequential = sum(seq_runs)
-    batch_s, done = timed(pipemap("batch", manifest, "--out", work / "batch", "--workers", args.workers))
+    batch_s, done = timed(pipemap("batch", manifest, "--out", work / "batch", "--workers", args.workers), "batch")
     assert done.returncode == 0, done.stdout + done.stderr
     load_after = os.getloadavg()
     rows = summary(work / "batch")
@@ -117,6 +127,7 @@ def main() -> None:
         "workers": args.workers, "cores": os.cpu_count(), "python": platform.python_version(),
         "sequential_s": round(sequential, 2), "sequential_runs_s": seq_runs, "batch_s": round(batch_s, 2),
         "speedup": round(sequential / batch_s, 3),
+        "cpu_s": {k: round(v, 1) for k, v in CPU_S.items() if k},
         "batch_rows": [{k: r[k] for k in ("run", "status", "frames", "keyframes", "junctions", "seconds")}
                        for r in rows],
         "differences_ignoring": list(TIMING_KEYS), "differences": differences,
@@ -131,6 +142,7 @@ def main() -> None:
     print(f"{args.runs} x {args.preset} {args.width}x{args.height}, {args.frames} frames:")
     print(f"  sequential pipemap run: {sequential:.1f} s ({', '.join(f'{s:.1f}' for s in seq_runs)})")
     print(f"  pipemap batch, {args.workers} workers: {batch_s:.1f} s -> {sequential / batch_s:.2f}x")
+    print(f"  CPU seconds: sequential {CPU_S['sequential']:.1f}, batch {CPU_S['batch']:.1f}")
     print(f"  outputs differing from pipemap run (wall-time keys aside): "
           f"{sum(len(v) for v in differences.values())}")
     print(f"  re-run: {rerun_s:.1f} s, statuses {sorted(set(result['rerun_statuses']))}")

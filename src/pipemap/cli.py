@@ -487,7 +487,7 @@ def _batch(manifest: str, out: Path, scheduler: Optional[str], workers: Optional
 
     def started(client, todo) -> None:
         where = f"the cluster at {scheduler}" if scheduler else "a local cluster"
-        workers_up = len(client.scheduler_info().get("workers", {}))
+        workers_up = len(client.nthreads())
         console.print(f"{len(todo)} of {len(runs)} runs to map on {where} ({workers_up} workers)", markup=False)
         console.print(f"dashboard: {client.dashboard_link}", markup=False, highlight=False, soft_wrap=True)
 
