@@ -126,7 +126,9 @@ def run_batch(runs: list[BatchRun], out: Path, client_factory: Callable[[], cont
     rows, todo = plan(runs, out)
 
     def summary(unfinished: str = PENDING) -> list[dict]:
-        table = [rows.get(run.name) or summary_row(run, out, unfinished) for run in runs]
+        # a run can finish on its worker just before Ctrl-C reaches the batch: its folder is complete
+        table = [rows.get(run.name) or summary_row(run, out, MAPPED if (out / run.name / "run.json").is_file()
+                                                   else unfinished) for run in runs]
         write_summary(out / SUMMARY_FILE, table)
         return table
 
