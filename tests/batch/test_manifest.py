@@ -70,3 +70,12 @@ def test_a_run_may_not_set_the_batch(tmp_path):
 def test_nothing_matches(tmp_path):
     with pytest.raises(PipemapError, match="no manifest file and no dataset folder"):
         read_runs(str(tmp_path / "none*"))
+
+
+def test_one_dataset_by_folder_or_yaml(tmp_path):
+    _datasets(tmp_path)
+    by_folder, = read_runs(str(tmp_path / "a"))
+    by_yaml, = read_runs(str(tmp_path / "a" / "dataset.yaml"))
+    assert (by_folder.name, by_folder.dataset) == (by_yaml.name, by_yaml.dataset) == ("a", tmp_path / "a")
+    with pytest.raises(PipemapError, match="manifest not found"):
+        read_runs(str(tmp_path / "runs.yaml"))

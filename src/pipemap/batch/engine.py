@@ -92,7 +92,8 @@ def _settings_changed(run: BatchRun, record: dict) -> bool:
 
     now = json.loads(json.dumps(run.settings.recorded())) if run.settings is not None else {}
     then = record.get("settings") or {}
-    return bool(then) and now != then or run.method not in ("auto", "fisheye", record.get("method"))
+    method = "network" if run.method == "fisheye" else run.method
+    return (bool(then) and now != then) or method not in ("auto", record.get("method"))
 
 
 def plan(runs: list[BatchRun], out: Path) -> tuple[dict[str, dict], list[BatchRun]]:

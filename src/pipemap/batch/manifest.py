@@ -37,14 +37,15 @@ def read_runs(spec: str, method: str = "auto", config: Path | None = None, overr
     """The runs `spec` names: a .yaml/.yml or .csv manifest, or else a glob of dataset folders (or of their
     dataset.yaml files). The batch-wide `method`, `config` and `overrides` apply to every run first."""
     path = Path(os.path.expanduser(spec))
-    if path.suffix.lower() in (".yaml", ".yml", ".csv") and path.is_file():
+    manifest = path.suffix.lower() in (".yaml", ".yml", ".csv") and path.name != "dataset.yaml"
+    if manifest and path.is_file():
         rows = _yaml_rows(path) if path.suffix.lower() != ".csv" else _csv_rows(path)
         base = path.resolve().parent
-    elif path.is_dir() or path.suffix.lower() in (".yaml", ".yml", ".csv"):
+    elif manifest:
+        raise PipemapError("manifest not found", path)
+    elif path.is_dir() or (path.name == "dataset.yaml" and path.is_file()):
         if path.is_dir() and not (path / "dataset.yaml").is_file():
             raise PipemapError("is a folder without dataset.yaml; give a manifest (.yaml, .csv) or a glob", path)
-        if not path.exists():
-            raise PipemapError("manifest not found", path)
         rows, base = [(str(path), {"dataset": str(path)})], Path.cwd()
     else:
         rows, base = _glob_rows(spec), Path.cwd()
@@ -112,6 +113,7 @@ def _run(where: str, row: dict, base: Path, method: str, config: Path | None, ov
     if not row.get("dataset"):
         raise PipemapError("no dataset given", where, "dataset")
     dataset = (base / os.path.expanduser(str(row["dataset"]))).resolve()
+    dataset = dataset.parent if dataset.name == "dataset.yaml" else dataset
     name = str(row.get("name") or dataset.name)
     run = BatchRun(name, dataset, str(row.get("method") or method))
     try:
