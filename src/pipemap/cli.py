@@ -402,39 +402,32 @@ def run_command(
 
 def _map(dataset: Path, out: Path, method: str, settings):
     """`pipemap run` without its output rule: map with `method` and print what was found; the self-checks."""
-    from pipemap.dataset import load_dataset
-    from pipemap.pipeline import run_pipeline
-    from pipemap.straight import DENSE_METHODS, run_dense
-    from pipemap.straight.sparse.run import SPARSE_METHOD, run_sparse
+    from pipemap.methods import NETWORK_METHODS, check_method, choose_method, map_dataset
+    from pipemap.straight import DENSE_METHODS
 
+    check_method(method, key="--method")
     if method == "auto":
-        from pipemap.view import camera_view
-
         with console.status("checking which way the camera looks"):
-            view = camera_view(load_dataset(dataset), settings)
-        method = view.method
+            method, view = choose_method(dataset, settings)
         console.print(f"method: {method} ({view.reason()})", markup=False)
     if method in DENSE_METHODS:
         with frame_progress(method) as progress:
-            dense = run_dense(dataset, out, settings, method, progress=progress)
+            dense = map_dataset(dataset, out, method, settings, progress=progress)
         console.print(f"{len(dense.indices)} frames registered ({method}) -> {out}")
         if dense.mount is not None:
             console.print(dense.mount.line(), markup=False)
         console.print(f"scale: {dense.zeta:.1f} px/m from {dense.zeta_source}", markup=False)
         return dense.quality
-    if method == SPARSE_METHOD:
+    if method not in NETWORK_METHODS:
         with frame_progress(method) as progress:
-            sparse = run_sparse(dataset, out, settings, progress=progress)
+            sparse = map_dataset(dataset, out, method, settings, progress=progress)
         console.print(f"{sparse.frames} frames, {len(sparse.indices)} keyframes ({method}), camera offset from "
                       f"the axis C_X {sparse.offset[0] * 1e3:.2f} mm, C_Y {sparse.offset[1] * 1e3:.2f} mm -> {out}")
         if sparse.mount is not None:
             console.print(sparse.mount.line(), markup=False)
         return sparse.quality
-    if method not in ("network", "fisheye"):
-        raise PipemapError(f"unknown method {method!r} (expected auto, network, {', '.join(DENSE_METHODS)}, "
-                           f"{SPARSE_METHOD})", "--method")
     with frame_progress("tracking", keyframes=True) as progress:
-        result = run_pipeline(dataset, out, settings, progress=progress, on_stage=stage_notice)
+        result = map_dataset(dataset, out, method, settings, progress=progress, on_stage=stage_notice)
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())
     console.print(f"{result.image_count} frames, {result.keyframe_count} keyframes, "
                   f"{len(result.junctions)} junctions, {len(result.map.points)} points -> {out}  ({stages})")
@@ -446,6 +439,86 @@ def _map(dataset: Path, out: Path, method: str, settings):
                       + (" (dataset mask" + (" and static overlay)" if result.mask.static else ")") if m["given"]
                          else " (static overlay found in the footage)"), markup=False)
     return result.quality
+
+
+@app.command()
+@friendly
+def batch(
+    manifest: str = typer.Argument(..., help="A manifest of runs (.yaml or .csv: dataset, and optionally name, "
+                                   "method, config, set) or a quoted glob of dataset folders, e.g. \"runs/*\"."),
+    out: Path = typer.Option(..., "--out", help="Folder for one result folder per run (named after the run) and "
+                             "batch.csv; the same command again goes on where the last one stopped."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of a running Dask scheduler, e.g. "
+                                            "tcp://10.0.0.5:8786 (default: a cluster on this machine)."),
+    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="Workers of the local cluster, one run at "
+                                          "a time each (default: batch.workers, one per core)."),
+    method: str = typer.Option("auto", "--method", help="Method of the runs whose manifest entry names none (as "
+                               "pipemap run --method)."),
+    config: Optional[Path] = CONFIG_OPTION,
+    set_: List[str] = SET_OPTION,
+) -> None:
+    """Map many datasets at once, one Dask task per run, and print (and write batch.csv) each run's status,
+    frames, keyframes, junctions, wall time and problems. Runs already complete are skipped; a run that
+    fails is reported in one line and the others go on; exit status 1 when any failed."""
+    try:
+        table = _batch(manifest, out, scheduler, workers, method, config, set_)
+    except KeyboardInterrupt:
+        err_console.print(f"pipemap: interrupted; {out} holds only complete result folders (see "
+                          f"{out / 'batch.csv'}); the same command goes on", markup=False, highlight=False)
+        raise typer.Exit(130) from None
+    _batch_table(table)
+    failed = sum(1 for row in table if row["status"] == "failed")
+    if failed:
+        raise typer.Exit(1)
+
+
+def _batch(manifest: str, out: Path, scheduler: Optional[str], workers: Optional[int], method: str,
+           config: Optional[Path], set_: List[str]) -> list[dict]:
+    from pipemap.batch.engine import dask_client, run_batch
+    from pipemap.batch.manifest import read_runs
+    from pipemap.methods import check_method
+
+    check_method(method, key="--method")
+    settings = _load_settings(config, set_).batch  # a wrong batch-wide setting stops the batch at once
+    if scheduler and workers:
+        raise PipemapError("sets the local cluster's size; the cluster at --scheduler has its own workers",
+                           "--workers")
+    runs = read_runs(manifest, method, config, tuple(set_))
+
+    def started(client, todo) -> None:
+        where = f"the cluster at {scheduler}" if scheduler else "a local cluster"
+        workers_up = len(client.nthreads())
+        console.print(f"{len(todo)} of {len(runs)} runs to map on {where} ({workers_up} workers)", markup=False)
+        console.print(f"dashboard: {client.dashboard_link}", markup=False, highlight=False, soft_wrap=True)
+
+    def progress(p) -> None:
+        row = p.row
+        what = f"{row['frames']} frames in {row['seconds']} s" if row["status"] == "mapped" else row["problems"]
+        console.print(f"[{p.done}/{p.total}] {row['run']}: {row['status']}, {what}  (batch: "
+                      f"{p.frames_per_second:.1f} frames/s)", markup=False, highlight=False)
+
+    table = run_batch(runs, out, lambda: dask_client(scheduler, settings, workers), settings.threads_per_run,
+                      on_start=started, on_progress=progress, local=not scheduler)
+    if not any(row["status"] in ("mapped", "failed") for row in table):
+        console.print(f"all {len(table)} runs were complete already; nothing to map", markup=False)
+    return table
+
+
+def _batch_table(rows: list[dict]) -> None:
+    """The summary as a table, then each run's problems on a line of its own (they are sentences)."""
+    columns = ("run", "status", "method", "frames", "keyframes", "junctions", "seconds", "quality")
+    table = Table(title="batch")
+    for col in columns:
+        table.add_column(col, justify="right" if col in ("frames", "keyframes", "junctions", "seconds") else "left")
+    style = {"mapped": "green", "skipped": "dim", "failed": "red", "interrupted": "yellow"}
+    for row in rows:
+        cells = [escape(str(row[c])) for c in columns]
+        cells[1] = f"[{style[row['status']]}]{cells[1]}[/]" if row["status"] in style else cells[1]
+        table.add_row(*cells)
+    console.print(table)
+    for row in rows:
+        if row["problems"]:
+            console.print(f"{row['run']}: {row['problems']}", markup=False, highlight=False, soft_wrap=True)
 
 
 def _verdict(quality, strict: bool) -> None:

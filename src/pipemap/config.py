@@ -503,6 +503,21 @@ class ViewerSettings(_Section):
                               "sample of appearance.ply (a paper-loop map holds about 10 million; 0: none)")
 
 
+class BatchSettings(_Section):
+    """`pipemap batch`: many datasets, one Dask task each. Only the batch's own --config / --set reach these."""
+
+    workers: int | None = Field(None, gt=0, description="workers of the local Dask cluster, one run at a time each "
+                                "(None: one per core); a cluster at --scheduler has its own")
+    threads_per_run: int | None = Field(1, gt=0, description="OpenCV and BLAS/OpenMP threads of one run on a worker: "
+                                        "with one, a worker per core keeps every core on its own run, where more "
+                                        "threads only wait on one another (None: the libraries' own choice)")
+    retries: int = Field(3, ge=0, description="times a run is started again on another worker when its worker dies "
+                         "under it (the local scheduler's allowed-failures); a run that fails on its input is not "
+                         "retried")
+    processes: bool = Field(True, description="local workers are processes (False: threads of the batch's own "
+                            "process, which start at once but share one interpreter)")
+
+
 class Settings(_Section):
     seed: int = Field(0, description="seed of every random choice (RANSAC, sampling)")
     frontend: FrontendSettings = FrontendSettings()
@@ -520,9 +535,14 @@ class Settings(_Section):
     route: RouteSettings = RouteSettings()
     locate: LocateSettings = LocateSettings()
     viewer: ViewerSettings = ViewerSettings()
+    batch: BatchSettings = BatchSettings()
 
     def to_dict(self) -> dict[str, Any]:
         return self.model_dump(mode="json")
+
+    def recorded(self) -> dict[str, Any]:
+        """The settings a result records: all but `batch`, which spreads runs over workers and changes no map."""
+        return self.model_dump(mode="json", exclude={"batch"})
 
 
 def _first_error(exc: ValidationError) -> tuple[str, str]:

@@ -370,7 +370,7 @@ def run_tracking(dataset_path, out_dir, settings=None, progress=None) -> Trackin
             "version": __version__,
             "stage": "track",
             "input": str(dataset.root),
-            "settings": settings.to_dict(),
+            "settings": settings.recorded(),
             "frames": done,
             "keyframes": len(keyframes),
             "lost_keyframes": sum(1 for k in keyframes[1:] if not k.pose_valid),
