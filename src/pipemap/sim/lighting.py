@@ -231,16 +231,21 @@ class Sensor:
         v = 1 - np.float32(self.vignetting) * (1 - np.cos(np.asarray(theta, np.float32)))
         return np.maximum(v, 0).astype(np.float32, copy=False)
 
-    def expose(self, radiance: np.ndarray, theta: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def gain(self, theta: np.ndarray) -> np.ndarray:
+        """Electrons per unit radiance at bearings of colatitude theta: exposure x vignetting."""
+        return np.float32(self.exposure) * self.vignetting_factor(theta)
+
+    def expose(self, radiance: np.ndarray, theta: np.ndarray, rng: np.random.Generator,
+               gain: np.ndarray | None = None) -> np.ndarray:
         """Image (uint8, uint16 above 8 bits) of radiance (H, W) at bearings of colatitude theta.
 
         Noise is Gaussian with variance electrons + read_noise^2: the normal approximation of
         Poisson shot noise plus read noise, drawn once per pixel (rng.poisson is several times
         slower; the approximation is poor only below ~10 electrons, deep in the dark pipe end).
-        Non-finite radiance reads as 0.
+        Non-finite radiance reads as 0. `gain`: this sensor's gain(theta), when the caller keeps it.
         """
         rad = np.asarray(radiance, np.float32)
-        e = rad * (np.float32(self.exposure) * self.vignetting_factor(theta))
+        e = rad * (self.gain(theta) if gain is None else gain)
         np.nan_to_num(e, copy=False, nan=0.0, posinf=np.float32(self.full_well), neginf=0.0)
         np.maximum(e, 0, out=e)
         sigma = np.sqrt(e + np.float32(self.read_noise**2))

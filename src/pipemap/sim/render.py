@@ -68,6 +68,7 @@ class Pixels:
     components: np.ndarray  # (3, N) float32, the same bearings component-wise
     theta: np.ndarray  # (H, W) float32 colatitude (for vignetting)
     angle: np.ndarray  # (N,) float32 angular size of the pixel, radians
+    outside: np.ndarray  # (H, W) ~valid
 
 
 def camera_pixels(camera: CameraModel) -> Pixels:
@@ -88,7 +89,7 @@ def camera_pixels(camera: CameraModel) -> Pixels:
     theta = np.arccos(np.clip(bearings[..., 2], -1.0, 1.0)).astype(np.float32)
     index = np.flatnonzero(valid)
     b = bearings.reshape(-1, 3)[index]
-    return Pixels(valid, index, b.copy(), np.ascontiguousarray(b.T), theta, angle.ravel()[index].copy())
+    return Pixels(valid, index, b.copy(), np.ascontiguousarray(b.T), theta, angle.ravel()[index].copy(), ~valid)
 
 
 class Renderer:
@@ -116,6 +117,7 @@ class Renderer:
                 self.surfaces.append(self.texture.surface(key, total, circ))
                 self.h_offsets.append(np.float32(h0))
         self.exposure = appearance.exposure
+        self._gain = None
 
     # -- geometry and radiance ------------------------------------------------------------------
 
@@ -126,6 +128,10 @@ class Renderer:
     def surface_points(self, R_wc: np.ndarray, t_wc: np.ndarray):
         """Camera-frame points and inward normals as (3, N) components, texture coordinates h, s
         (N,), and the hits. Caps get h running inwards from the rim (the wall texture folds over)."""
+        return self._surface(R_wc, t_wc)[:5]
+
+    def _surface(self, R_wc: np.ndarray, t_wc: np.ndarray):
+        """surface_points and the hits' pixels grouped by piece (_groups), which shading reuses."""
         R = np.asarray(R_wc, float)
         origin = np.asarray(t_wc, float)
         hits = self.trace(R, origin)
@@ -139,7 +145,8 @@ class Renderer:
         N = np.zeros((3, n), f32)
         s = np.zeros(n, f32)
         K = len(self.scene.pipes)
-        for j, idx in _groups(hits.pipe, len(self.scene.pieces)):
+        groups = _groups(hits.pipe, len(self.scene.pieces))
+        for j, idx in groups:
             if j >= K:
                 N[:, idx], s[idx] = self._bend_wall(self.scene.bends[j - K], R, origin, P[:, idx])
                 continue
@@ -163,7 +170,7 @@ class Renderer:
                 hj[cap] = np.where(at_start, inward, f32(pipe.length) - inward)
                 h[idx] = hj
             N[:, idx] = w
-        return P, N, h, s, hits
+        return P, N, h, s, hits, groups
 
     def _bend_wall(self, bend, R: np.ndarray, origin: np.ndarray, P: np.ndarray):
         """Inward normals (3, n) in the camera frame and s = r * phi of camera-frame wall points P on a bend:
@@ -189,13 +196,13 @@ class Renderer:
     def shading(self, R_wc: np.ndarray, t_wc: np.ndarray) -> "Shading":
         """The parts of one pose's radiance: the wall's albedo, which moves with the wall, and the
         LED light on it, which moves with the camera; with the wall points and hits."""
-        P, N, h, s, hits = self.surface_points(R_wc, t_wc)
+        P, N, h, s, hits, groups = self._surface(R_wc, t_wc)
         ap = self.appearance
         B = self.pixels.components
         albedo = np.zeros(P.shape[1], np.float32)
         cos_inc = np.abs(N[0] * B[0] + N[1] * B[1] + N[2] * B[2])
         footprint = hits.t * self.pixels.angle / np.maximum(cos_inc, np.float32(0.1))
-        for j, idx in _groups(hits.pipe, len(self.scene.pieces)):
+        for j, idx in groups:
             albedo[idx] = self.surfaces[j].sample(h[idx] + self.h_offsets[j], s[idx], footprint[idx])
         if hits.cap.any():
             albedo[hits.cap] *= np.float32(ap.cap_albedo)
@@ -262,12 +269,18 @@ class Renderer:
         """uint8 image of a radiance image; the exposure is fixed by the first call."""
         sensor = self.appearance.sensor(self.fix_exposure(radiance))
         if self.appearance.noise:
-            img = sensor.expose(radiance, self.pixels.theta, rng)
+            img = sensor.expose(radiance, self.pixels.theta, rng, self._sensor_gain(sensor))
         else:
             e = radiance * sensor.vignetting_factor(self.pixels.theta) * np.float32(sensor.exposure / sensor.full_well)
             img = np.rint(np.clip(e, 0, 1) * 255).astype(np.uint8)
-        img[~self.pixels.valid] = 0
+        img[self.pixels.outside] = 0
         return img
+
+    def _sensor_gain(self, sensor: Sensor) -> np.ndarray:
+        """The sensor's per-pixel gain, kept while the exposure stays the same (every frame of a run)."""
+        if self._gain is None or self._gain[0] != sensor.exposure:
+            self._gain = (sensor.exposure, sensor.gain(self.pixels.theta))
+        return self._gain[1]
 
     def render(self, poses, rng: np.random.Generator) -> np.ndarray:
         """uint8 image; `poses` is one (R_wc, t_wc) or a list of them averaged (motion blur)."""

@@ -137,7 +137,8 @@ def simulate(preset: str, out: Path, *, width: int | None = None, height: int | 
         (tmp / "images").mkdir()
         (tmp / "ground_truth").mkdir()
         mean = np.zeros((setup.camera.height, setup.camera.width), np.float64) if setup.gain_mask else None
-        for i, img in enumerate(_render_frames(renderer, p, seed, motion_blur, tmp / "images", workers)):
+        for i, img in enumerate(_render_frames(renderer, p, seed, motion_blur, tmp / "images", workers,
+                                                  keep=mean is not None)):
             if mean is not None:
                 mean += img
             if progress is not None:
@@ -197,9 +198,11 @@ def _worker_count(workers: int | None, n: int) -> int:
 _JOB: tuple | None = None  # what forked rendering workers share with the parent (copy-on-write)
 
 
-def _render_frames(renderer: Renderer, p: Plan, seed: int, motion_blur: int, folder: Path, workers: int):
+def _render_frames(renderer: Renderer, p: Plan, seed: int, motion_blur: int, folder: Path, workers: int,
+                   keep: bool = True):
     """Render and write every frame in order, yielding each image; with several workers, forked
-    processes render and write frames while this one collects them in order."""
+    processes render and write frames while this one collects them in order (the images
+    themselves only when `keep`: otherwise None, sparing the copy between processes)."""
     global _JOB
     n = len(p)
     if workers == 1 or n == 1:
@@ -214,7 +217,7 @@ def _render_frames(renderer: Renderer, p: Plan, seed: int, motion_blur: int, fol
     poses = [poses] if isinstance(poses, tuple) else poses
     rad = sum(renderer.radiance(R, t) for R, t in poses) / len(poses)
     renderer.fix_exposure(rad.astype(np.float32))
-    _JOB = (renderer, p, seed, motion_blur, folder)
+    _JOB = (renderer, p, seed, motion_blur, folder, keep)
     try:
         with multiprocessing.get_context("fork").Pool(workers) as pool:
             yield from pool.imap(_render_one, range(n), chunksize=2)
@@ -222,12 +225,12 @@ def _render_frames(renderer: Renderer, p: Plan, seed: int, motion_blur: int, fol
         _JOB = None
 
 
-def _render_one(i: int) -> np.ndarray:
-    renderer, p, seed, motion_blur, folder = _JOB
+def _render_one(i: int) -> np.ndarray | None:
+    renderer, p, seed, motion_blur, folder, keep = _JOB
     img = renderer.render(_sub_poses(p, i, motion_blur), frame_rng(seed, i))
     if not cv2.imwrite(str(folder / f"{i:06d}.png"), img):
         raise PipemapError("cannot write image", folder / f"{i:06d}.png")
-    return img
+    return img if keep else None
 
 
 def _plain(x):

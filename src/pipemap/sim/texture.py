@@ -63,8 +63,7 @@ class WallSurface:
         h, s = np.broadcast_arrays(np.asarray(h, np.float32), np.asarray(s, np.float32))
         shape = h.shape
         h = h.ravel()
-        with np.errstate(invalid="ignore"):
-            s = np.mod(s.ravel(), np.float32(self.circumference_m))
+        s = _wrap(s.ravel(), np.float32(self.circumference_m))
         top = len(self.levels) - 1
         if footprint_m is None or np.ndim(footprint_m) == 0:
             lvl = 0.0 if footprint_m is None else _level(float(footprint_m), self._px0, top)
@@ -117,6 +116,15 @@ class WallSurface:
             src = img[:, c0 : min(cols, c0 + _REMAP_TILE + 2)]
             out[idx] = _remap(src, mx[idx] - c0, my[idx])
         return out[:n]
+
+
+def _wrap(s: np.ndarray, circ: np.float32) -> np.ndarray:
+    """s modulo the circumference. Wall points give s in (-circ, circ), where one conditional add
+    gives np.mod's values at a quarter of its cost; anything else takes np.mod."""
+    if s.size and -circ < s.min() and s.max() < circ:
+        return np.where(s < 0, s + circ, s)
+    with np.errstate(invalid="ignore"):
+        return np.mod(s, circ)
 
 
 def _remap(img: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
