@@ -192,3 +192,36 @@ def test_observations_round_trip(tee_run, tmp_path):
     assert (float(point["clock_from_deg"]) - a) % 360 <= (b - a) % 360
     r = CliRunner().invoke(app, ["observations", str(res.out_dir), str(obs), "--out", str(out)])
     assert r.exit_code != 0 and "exists" in r.output and "Traceback" not in r.output
+
+
+def test_export_sections_and_network(tee_run, tmp_path):
+    """sections.csv runs end to end along the route; network.geojson starts at the local frame's origin and its
+    nodes lie the route's chainage apart along its lines; the folder is made; nothing is overwritten (the
+    manholes' similarity: tests/core/test_route.py)."""
+    import csv
+    import json
+
+    from typer.testing import CliRunner
+
+    from pipemap.cli import app
+
+    _, res = tee_run
+    route = json.loads((res.out_dir / "route.json").read_text())
+    out = tmp_path / "export"
+    r = CliRunner().invoke(app, ["export", str(res.out_dir), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader((out / "sections.csv").open()))
+    assert float(rows[0]["chainage_m"]) == 0.0
+    assert float(rows[-1]["chainage_to_m"]) == pytest.approx(route["length_m"], abs=1e-3)
+    for a, b in zip(rows, rows[1:]):
+        assert a["chainage_to_m"] == b["chainage_m"] and a["to_node"] == b["from_node"]
+    doc = json.loads((out / "network.geojson").read_text())
+    lines = [f for f in doc["features"] if f["geometry"]["type"] == "LineString"]
+    nodes = {f["properties"]["id"]: f["geometry"]["coordinates"] for f in doc["features"]
+             if f["geometry"]["type"] == "Point"}
+    assert nodes["start"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-6)
+    length = sum(np.linalg.norm(np.diff(np.asarray(f["geometry"]["coordinates"], float), axis=0), axis=1).sum()
+                 for f in lines)
+    assert length == pytest.approx(route["length_m"], rel=1e-3)  # straight lines: polyline length is chainage
+    r = CliRunner().invoke(app, ["export", str(res.out_dir), "--out", str(out)])
+    assert r.exit_code != 0 and "exists" in r.output and "Traceback" not in r.output

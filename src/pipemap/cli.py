@@ -589,7 +589,11 @@ def locate(
     s = _load_settings(config, set_)
     px = [_pair(p, "--pixel")[:2] for p in pixel]
     loc = locate_pixels(open_result(result_dir), frame, px, s.locate)
-    console.print(f"frame {frame}: pose from the {loc.pose}", highlight=False)
+    how = {"keyframe": "a keyframe's own pose",
+           "interpolated": "pose interpolated between the keyframes either side",
+           "registered": "position interpolated between the keyframes, orientation registered to the nearest one's "
+                         "image"}.get(loc.pose, loc.pose)
+    console.print(f"frame {frame}: {how}", highlight=False)
     for (u, v), ok, c, k, p, sc, sk in zip(px, loc.ok, loc.chainage, loc.clock_deg, loc.points, loc.sigma_chainage,
                                            loc.sigma_clock_deg):
         if not ok:
@@ -645,6 +649,10 @@ def export(
     a = None if start_manhole is None else _pair(start_manhole, "--start-manhole")
     b = None if end_manhole is None else _pair(end_manhole, "--end-manhole")
     doc = network_geojson(route, a, b, crs)
+    if out is not None and not out.exists():
+        if not out.parent.is_dir():
+            raise PipemapError("folder does not exist", out.parent)
+        out.mkdir()
     for name in ("sections.csv", "network.geojson"):
         check_new_file(folder / name, force)
     atomic_write_text(folder / "sections.csv", sections_csv(route))
