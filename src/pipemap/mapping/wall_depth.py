@@ -3,9 +3,10 @@
 Each cell is a patch of the wall `dense_patch_m` square (along x around), centred every `dense_cell_m` around
 the ring at the slice. The patch is moved along the wall normal through radii R +- dense_search_m in steps of
 dense_step_m; at each radius its points are projected into the keyframes that see it (the poses fixed, as the
-VO left them) and sampled by area: every sample is the mean of `dense_subsamples`^2 points spread over its
-square of wall, so a view that sees the wall at 1 mm a pixel and one at 2 mm a pixel both see the same
-averaged texture, not aliases of it.
+VO left them) and sampled every `dense_sample_m`; with `dense_subsamples` > 1 each sample is the mean of
+that many points squared over its square of wall (area sampling; on deformed-pipe 2 read no better than 1
+and cost 15 times as much, so 1 is the default: at 1.5 mm samples no view used sees the wall coarser than
+about 2 mm a pixel).
 
 The reference view is the one that sees the cell nearest `dense_ref_deg` off its axis (the fisheye sees the
 wall best there: sharp, not grazing). The others see it between dense_ref_deg + `dense_parallax_deg` and
