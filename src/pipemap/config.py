@@ -291,14 +291,26 @@ class DeformationSettings(_Section):
                                     "point's rays")
     max_ray_error_deg: float = Field(0.15, gt=0, description="sparse re-triangulation: drop points whose ray "
                                      "misses an observation by more than this")
-    dense: bool = Field(False, description="also search the wall's radius densely by photo-consistency (cylinder "
-                        "sweep; experimental: on deformed-pipe its cells' radii are 5-12 mm off, so ovality reads "
-                        "several percentage points off; wall_depth.py says why)")
+    dense: bool = Field(False, description="also measure the wall's radius densely by photo-consistency (a "
+                        "sweep along the wall normal per cell of each slice's ring, wall_depth.py)")
     dense_search_m: float = Field(0.02, gt=0, description="dense search: +- this around the a-priori radius")
-    dense_step_m: float = Field(0.0005, gt=0, description="dense search: radius step")
-    dense_cell_m: float = Field(0.003, gt=0, description="dense search: wall cell size along and around")
-    dense_window_cells: int = Field(5, ge=1, description="dense search: cost summed over this many cells square")
-    dense_views: int = Field(6, ge=2, description="dense search: keyframes compared per slice")
+    dense_step_m: float = Field(0.002, gt=0, description="dense search: radius step (the least cost is refined "
+                                "by a parabola)")
+    dense_cell_m: float = Field(0.01, gt=0, description="dense search: spacing of the cells around the ring")
+    dense_patch_m: float = Field(0.015, gt=0, description="dense search: side of a cell's wall patch")
+    dense_sample_m: float = Field(0.0015, gt=0, description="dense search: spacing of the patch's samples")
+    dense_subsamples: int = Field(1, ge=1, le=4, description="dense search: each sample averages this many "
+                                  "points squared over its square of wall (area sampling)")
+    dense_rings: int = Field(3, ge=1, description="dense search: rings of cells per slice, side by side along "
+                             "the pipe, fitted together")
+    dense_views: int = Field(5, ge=2, description="dense search: views per cell, the reference among them")
+    dense_ref_deg: float = Field(45.0, gt=0, lt=90, description="dense search: the reference view sees the cell "
+                                 "nearest this far off its axis")
+    dense_parallax_deg: float = Field(10.0, gt=0, description="dense search: the other views see the cell at "
+                                      "least this much nearer the side than the reference")
+    dense_max_deg: float = Field(90.0, gt=0, le=180, description="dense search: and at most this far off axis")
+    dense_min_zncc: float = Field(0.6, ge=-1, le=1, description="dense search: a cell whose best median "
+                                  "correlation is lower has no radius")
 
 
 class DenseSettings(_Section):
