@@ -61,8 +61,10 @@ def dask_client(scheduler: str | None, batch: BatchSettings, workers: int | None
     # every frame-sized array is then mapped and faulted in anew (measured: a run's system time 0.3 s -> 6 s).
     with dask.config.set({"distributed.scheduler.allowed-failures": batch.retries,
                           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        # A run's failure comes back with its task; the cluster's own logs are its machinery (a worker whose
+        # scheduler went away at Ctrl-C logs a heartbeat traceback at ERROR), not the user's business.
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=batch.processes,
-                               silence_logs=logging.ERROR, **extra)
+                               silence_logs=logging.CRITICAL, **extra)
     try:
         with Client(cluster) as client:
             yield client
