@@ -124,6 +124,9 @@ def test_report_command_and_its_errors(viewer_case, tmp_path):
 
     refused([str(result)], "viewer.html", "already exists")
     refused([str(tmp_path / "nowhere")], "nowhere", "not found")
+    (tmp_path / "empty").mkdir()
+    refused([str(tmp_path / "empty")], "empty", "not a result folder")
+    assert not (tmp_path / "empty" / "viewer.html").exists()
     refused([str(result), "--out", str(result / "run.json"), "--force"], "run.json", "made from")
     bad = write_csv(tmp_path / "obs.csv", ["id", "code", "chainage_m"], [{"id": "O1", "code": "DAM"}])
     refused([str(result), "--observations", str(bad), "--force"], "obs.csv", "no column clock_from_deg")

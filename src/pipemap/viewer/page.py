@@ -126,6 +126,9 @@ def write_viewer(result_dir: str | Path, out: str | Path | None = None, observat
     result_dir = Path(result_dir)
     if not result_dir.is_dir():
         raise PipemapError("result folder not found" if not result_dir.exists() else "not a folder", result_dir)
+    if not any((result_dir / name).exists() for name in ("run.json", "trajectory.tum", "unrolled")):
+        raise PipemapError("not a result folder: no run.json, trajectory.tum or unrolled/ (pipemap run writes them)",
+                           result_dir)
     out = Path(out) if out is not None else result_dir / VIEWER
     if out.exists() and out.is_dir():
         raise PipemapError("is a folder; give a file name for --out", out)
