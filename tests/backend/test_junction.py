@@ -296,48 +296,50 @@ def test_fit_end_cylinders_fits_both_ends_relative_to_the_end_poses():
         fit_end_cylinder((R, t), X, RADIUS, length_m=0.0)
 
 
-def test_junction_jacobians_match_numerical():
-    """The Schur step of the analytic normal equations equals a Gauss-Newton step from numerical Jacobians
-    (checked through the gradient: g = J^T W r)."""
-    sc = make_tee_scene(n_points=150, n_red=2, n_tee=6, n_blue=2, outlier_frac=0.0, seed=5)
-    prob = JunctionProblem(sc.camera, (sc.R0, sc.t0), sc.points0, sc.obs, sc.red_fit, sc.blue_fit,
-                           red_pose=sc.red_pose, blue_pose=sc.blue_pose, fixed=sc.fixed, attached=sc.attached,
-                           huber_px=1e6, huber_m=1e6)
+def _check_gradient(prob: JunctionProblem, points, global_rel: float = 1e-5, global_abs: float = 1e-6):
+    """The Schur step of the analytic normal equations equals a Gauss-Newton step from numerical Jacobians,
+    checked through the gradient g = J^T W r: without Huber down-weighting the cost is 0.5 |r|^2 x 2, whose
+    central differences are 2 g (the global block, every free camera, the `points` listed)."""
     state = prob.initial
     inl = np.ones(len(prob.obs), bool)
     on_blue = prob.assign(state)
     on_wall = np.ones(prob.M, bool)
     eq = prob.normal_equations(state, _Stage(prob, inl), on_blue, on_wall)
-    # Without Huber down-weighting the cost is 0.5 * |r|^2 * 2: its gradient is 2 g.
-    C = prob.n_free
-    eps = 1e-6
+    C, G, eps = prob.n_free, prob.n_global, 1e-6
 
-    def cost_at(dc, dx, dp):
-        return prob.cost(prob._step(state, (dc, dx, dp)), inl, on_blue, on_wall)
+    def slope(dc, dx, dp):
+        return (prob.cost(prob._step(state, (dc, dx, dp)), inl, on_blue, on_wall)
+                - prob.cost(prob._step(state, (-dc, -dx, -dp)), inl, on_blue, on_wall)) / (2 * eps)
 
-    zero = (np.zeros((C, 6)), np.zeros(5), np.zeros((prob.M, 3)))
-    for k in range(5):
-        dx = np.zeros(5)
+    zc, zx, zp = np.zeros((C, 6)), np.zeros(G), np.zeros((prob.M, 3))
+    for k in range(G):
+        dx = zx.copy()
         dx[k] = eps
-        num = (cost_at(zero[0], dx, zero[2]) - cost_at(zero[0], -dx, zero[2])) / (2 * eps)
-        assert num == pytest.approx(2 * eq.gx[k], rel=1e-5, abs=1e-6)
+        assert slope(zc, dx, zp) == pytest.approx(2 * eq.gx[k], rel=global_rel, abs=global_abs)
     for c in range(C):
         for k in range(6):
-            dc = np.zeros((C, 6))
+            dc = zc.copy()
             dc[c, k] = eps
-            num = (cost_at(dc, zero[1], zero[2]) - cost_at(-dc, zero[1], zero[2])) / (2 * eps)
-            assert num == pytest.approx(2 * eq.gc[c, k], rel=1e-5, abs=1e-6)
-    for m in range(0, prob.M, 17):
+            assert slope(dc, zx, zp) == pytest.approx(2 * eq.gc[c, k], rel=1e-5, abs=1e-6)
+    for m in points:
         for k in range(3):
-            dp = np.zeros((prob.M, 3))
+            dp = zp.copy()
             dp[m, k] = eps
-            num = (cost_at(zero[0], zero[1], dp) - cost_at(zero[0], zero[1], -dp)) / (2 * eps)
-            assert num == pytest.approx(2 * eq.gp[m, k], rel=1e-5, abs=1e-6)
+            assert slope(zc, zx, dp) == pytest.approx(2 * eq.gp[m, k], rel=1e-5, abs=1e-6)
+
+
+def test_junction_jacobians_match_numerical():
+    sc = make_tee_scene(n_points=150, n_red=2, n_tee=6, n_blue=2, outlier_frac=0.0, seed=5)
+    prob = JunctionProblem(sc.camera, (sc.R0, sc.t0), sc.points0, sc.obs, sc.red_fit, sc.blue_fit,
+                           red_pose=sc.red_pose, blue_pose=sc.blue_pose, fixed=sc.fixed, attached=sc.attached,
+                           huber_px=1e6, huber_m=1e6)
+    _check_gradient(prob, range(0, prob.M, 17))
 
 
 def test_elbow_jacobians_match_numerical():
-    """An elbow's solve: the points near I on the bend's torus (bend radius rho a sixth global unknown), the
-    others on their cylinders; the analytic gradient against central differences of the cost."""
+    """An elbow's solve: the points near I on the bend's torus (bend radius rho a sixth global unknown, its
+    derivatives by central differences inside the problem, hence the looser global tolerance), the others on
+    their cylinders."""
     sc = make_tee_scene(n_points=150, n_red=2, n_tee=6, n_blue=2, outlier_frac=0.0, seed=6)
     bend = np.linalg.norm(sc.points0 - sc.I, axis=1) < 0.35
     prob = JunctionProblem(sc.camera, (sc.R0, sc.t0), sc.points0, sc.obs, sc.red_fit, sc.blue_fit,
@@ -345,34 +347,7 @@ def test_elbow_jacobians_match_numerical():
                            huber_px=1e6, huber_m=1e6, cylinder_points=~bend, torus_points=bend, bend_radius=0.3,
                            through=None)
     assert prob.n_global == 6 and bend.sum() > 10
-    state = prob.initial
-    inl = np.ones(len(prob.obs), bool)
-    on_blue = prob.assign(state)
-    on_wall = np.ones(prob.M, bool)
-    eq = prob.normal_equations(state, _Stage(prob, inl), on_blue, on_wall)
-    C, eps = prob.n_free, 1e-6
-
-    def cost_at(dc, dx, dp):
-        return prob.cost(prob._step(state, (dc, dx, dp)), inl, on_blue, on_wall)
-
-    zero = (np.zeros((C, 6)), np.zeros(6), np.zeros((prob.M, 3)))
-    for k in range(6):
-        dx = np.zeros(6)
-        dx[k] = eps
-        num = (cost_at(zero[0], dx, zero[2]) - cost_at(zero[0], -dx, zero[2])) / (2 * eps)
-        assert num == pytest.approx(2 * eq.gx[k], rel=1e-4, abs=1e-5)
-    for c in range(C):
-        for k in range(6):
-            dc = np.zeros((C, 6))
-            dc[c, k] = eps
-            num = (cost_at(dc, zero[1], zero[2]) - cost_at(-dc, zero[1], zero[2])) / (2 * eps)
-            assert num == pytest.approx(2 * eq.gc[c, k], rel=1e-5, abs=1e-6)
-    for m in np.r_[np.flatnonzero(bend)[:8], np.flatnonzero(~bend)[::29]]:
-        for k in range(3):
-            dp = np.zeros((prob.M, 3))
-            dp[m, k] = eps
-            num = (cost_at(zero[0], zero[1], dp) - cost_at(zero[0], zero[1], -dp)) / (2 * eps)
-            assert num == pytest.approx(2 * eq.gp[m, k], rel=1e-5, abs=1e-6)
+    _check_gradient(prob, np.r_[np.flatnonzero(bend)[:8], np.flatnonzero(~bend)[::29]], 1e-4, 1e-5)
 
 
 def test_bad_input_is_reported(scene):
