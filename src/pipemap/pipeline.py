@@ -13,9 +13,11 @@ Writes trajectory.tum, junctions.yaml, sparse.ply, appearance.ply, unrolled/, fr
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -112,6 +114,27 @@ class PipelineResult:
     quality: RunVerdict | None = None
 
 
+# False where every core already maps a run of its own (a batch worker held to one thread): the second
+# thread would only add its hand-overs to the run's time.
+_PREPARE_AHEAD: ContextVar[bool] = ContextVar("prepare_ahead", default=True)
+
+
+@contextlib.contextmanager
+def frames_prepared_in_turn():
+    """The front end reads, classifies and extracts each frame on the mapping thread itself (same result)."""
+    token = _PREPARE_AHEAD.set(False)
+    try:
+        yield
+    finally:
+        _PREPARE_AHEAD.reset(token)
+
+
+def _done(value) -> Future:
+    future: Future = Future()
+    future.set_result(value)
+    return future
+
+
 def track_and_classify(dataset: Dataset, settings: Settings,
                        progress: Callable[[int, int, int], None] | None = None) -> FrontEndResult:
     """Stage 1: every frame classified straight / junction (III-B) and tracked (III-A).
@@ -153,12 +176,13 @@ def track_and_classify(dataset: Dataset, settings: Settings,
 
     # One worker keeps the reading, classifying and extracting in frame order, two frames ahead.
     with ThreadPoolExecutor(max_workers=1) as pool:
-        ahead = deque(pool.submit(prepare) for _ in range(2))
+        submit = pool.submit if _PREPARE_AHEAD.get() else (lambda work: _done(work()))
+        ahead = deque(submit(prepare) for _ in range(2))
         while True:
             item = ahead.popleft().result()
             if item is None:
                 break
-            ahead.append(pool.submit(prepare))
+            ahead.append(submit(prepare))
             frame, features = item
             keyframes.extend(tracker.process(frame, features))
             done += 1

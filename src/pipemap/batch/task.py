@@ -24,18 +24,21 @@ class RunOutcome:
 
 @contextlib.contextmanager
 def run_threads(threads: int | None) -> Iterator[None]:
-    """OpenCV's and the BLAS/OpenMP pools' threads held to `threads` while one run maps (None: as they are).
-    A worker per core then keeps each core on its own run instead of every run's threads waiting on the others'."""
+    """OpenCV's and the BLAS/OpenMP pools' threads held to `threads` while one run maps (None: as they are);
+    with one, the front end prepares frames on the run's own thread too. A worker per core then keeps each core
+    on its own run instead of every run's threads waiting on the others'."""
     if threads is None:
         yield
         return
     import cv2
     from threadpoolctl import threadpool_limits
 
+    from pipemap.pipeline import frames_prepared_in_turn
+
     before = cv2.getNumThreads()
     cv2.setNumThreads(threads)
     try:
-        with threadpool_limits(threads):
+        with threadpool_limits(threads), (frames_prepared_in_turn() if threads == 1 else contextlib.nullcontext()):
             yield
     finally:
         cv2.setNumThreads(before)
