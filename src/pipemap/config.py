@@ -378,6 +378,10 @@ class SparseSettings(_Section):
         "its own Gaussian blur of this sigma, which removes the LEDs' fall-off that moves with the camera and drags "
         "Harris corners against the motion (a scale bias of 0.1-0.2 %); None = the image as it is")
     ambiguity_ratio: float = Field(0.8, gt=0, le=1, description="SIFT ambiguity ratio with mutual check")
+    match_patch_px: int | None = Field(15, ge=5, description="side of the patch (odd) that places each match in the "
+                                       "new keyframe by registering the previous keyframe's patch around it (affine "
+                                       "Lucas-Kanade); None keeps the Harris peaks found in each image")
+    match_iterations: int = Field(10, gt=0, description="Lucas-Kanade iterations of that registration")
     keyframe_min_matches: int = Field(100, gt=0)
     keyframe_max_flow_px: float = Field(20.0, gt=0)
     offset_batch_keyframes: int = Field(10, gt=1, description="keyframes of the initial offset C_X, C_Y batch")
@@ -387,6 +391,10 @@ class SparseSettings(_Section):
     offset_wall_sigma_m: float = Field(1e-4, gt=0, description="bundle batch: points may leave the wall by about this "
                                        "per pixel of reprojection error (the stiffness of the known radius)")
     offset_batch_iterations: int = Field(50, gt=0, description="bundle batch: Levenberg-Marquardt iterations")
+    max_incidence_deg: float | None = Field(
+        60.0, gt=0, le=90, description="bundle batch and sliding bundle: observations of wall seen more than this far "
+        "from its normal are left out (registered from keyframe to keyframe, a match there moves 0.4 % further "
+        "than the wall at 60-65 deg, 2 % at 65-70, against 0.05 % up to 60; None keeps all)")
     offset_huber_px: float = Field(1.0, gt=0, description="bundle batch and sliding bundle: Huber threshold of the "
                                    "reprojection error")
     offset_mad_k: float = Field(3.0, gt=0, description="bundle batch and sliding bundle: outliers beyond k x 1.4826 "

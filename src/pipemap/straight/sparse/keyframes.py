@@ -5,6 +5,13 @@ below `keyframe_min_matches` or their median flow exceeds `keyframe_max_flow_px`
 the next keyframe with its matches to I_k, and the search starts again from I_{n-1}. When even
 I_{k+1} fails, I_{k+1} itself is taken (the robot moved too far between two images to do better).
 The matches of each keyframe pair are cleaned by five-point RANSAC on bearings (seeded).
+
+Each inlier is then placed in the new keyframe by registering the patch around it in the previous keyframe
+(affine Lucas-Kanade, frontend/anchor.py), so that a track follows one wall point from keyframe to keyframe.
+Harris peaks found afresh in every image do not: where the camera sees the wall obliquely its
+foreshortening changes as a corner crosses the image, and the peak moves along the motion with it
+(against the simulator's truth at a 50 deg mount: +0.16 % of the image motion at 40-50 deg from the wall's
+normal, +1 % at 55-60; registered, +0.02 % and +0.05 %, and 0.15 px RMS instead of 0.5 px).
 """
 
 from __future__ import annotations
@@ -16,8 +23,9 @@ import numpy as np
 
 from pipemap.camera import CameraModel
 from pipemap.config import SparseSettings
+from pipemap.frontend.anchor import anchor_templates, refine_to_anchors
 from pipemap.frontend.relpose import estimate_relative_pose
-from pipemap.straight.sparse.features import Keypoints, detect, match
+from pipemap.straight.sparse.features import Keypoints, detect, flatten_light, match
 
 
 @dataclass(frozen=True)
@@ -28,6 +36,7 @@ class View:
     keypoints: Keypoints
     bearings: np.ndarray
     valid: np.ndarray
+    image: np.ndarray | None = None  # float32, as the keypoints were found in it (light flattened or not)
 
 
 @dataclass(frozen=True)
@@ -68,9 +77,29 @@ class KeyframeSelector:
         self.first: View | None = None
 
     def view(self, index: int, image: np.ndarray) -> View:
-        kp = detect(image, self.sparse, self.flatten_light)
+        if self.flatten_light and self.sparse.light_sigma_px is not None:
+            image = flatten_light(image, self.sparse.light_sigma_px)
+        image = np.asarray(image, np.float32)
+        kp = detect(image, self.sparse)
         bearings, valid = self.camera.unproject(kp.uv)
-        return View(index, kp, bearings, valid)
+        return View(index, kp, bearings, valid, image if self.sparse.match_patch_px else None)
+
+    def _registered(self, previous: View, current: View, pairs: np.ndarray) -> tuple[View, np.ndarray]:
+        """The current view with its matched keypoints moved to where the previous keyframe's patches register,
+        and the pairs that registered."""
+        patch = self.sparse.match_patch_px
+        if not patch or len(pairs) == 0 or previous.image is None or current.image is None:
+            return current, pairs
+        anchors = anchor_templates(previous.image, previous.keypoints.uv[pairs[:, 0]], patch)
+        ok, uv, _ = refine_to_anchors(current.image, anchors, current.keypoints.uv[pairs[:, 1]], patch,
+                                      iterations=self.sparse.match_iterations)
+        pairs, uv = pairs[ok], uv[ok]
+        moved = current.keypoints.uv.copy()
+        moved[pairs[:, 1]] = uv
+        bearings, valid = current.bearings.copy(), current.valid.copy()
+        bearings[pairs[:, 1]], valid[pairs[:, 1]] = self.camera.unproject(uv)
+        keypoints = Keypoints(moved, current.keypoints.score, current.keypoints.descriptors)
+        return View(current.index, keypoints, bearings, valid, current.image), pairs
 
     def _pass(self, pairs: np.ndarray, a: View, b: View) -> bool:
         if len(pairs) < self.sparse.keyframe_min_matches:
@@ -80,6 +109,7 @@ class KeyframeSelector:
 
     def _link(self, view: View, pairs: np.ndarray) -> KeyframeLink:
         inl = inlier_pairs(self.key, view, pairs, self.threshold_rad, self.rng, self.sparse.min_inliers)
+        view, inl = self._registered(self.key, view, inl)
         link = KeyframeLink(self.key, view, inl, len(pairs))
         self.key, self.last = view, None
         return link

@@ -232,7 +232,8 @@ class SparseOdometry:
         """The bundle batch's and the sliding bundle's settings."""
         sp = self.sparse
         return dict(wall_sigma_m=sp.offset_wall_sigma_m, huber_px=sp.offset_huber_px, mad_k=sp.offset_mad_k,
-                    outlier_passes=sp.offset_outlier_passes, iterations=sp.offset_batch_iterations)
+                    outlier_passes=sp.offset_outlier_passes, iterations=sp.offset_batch_iterations,
+                    max_incidence_deg=sp.max_incidence_deg)
 
     def _bundle_batch(self, kfs: list[KeyframeState]) -> None:
         res, fraction = self._from_best_start(kfs, self._run_bundle)
