@@ -151,6 +151,10 @@ class BundleSettings(_Section):
     elbow_torus: bool = Field(True, description="an elbow's solve holds the wall of its bend to a torus tangent to "
                               "both pipes' cylinders, its bend radius solved with the tee parameters (off: the bend's "
                               "wall counts by its reprojections only)")
+    elbow_free_red_axis: bool = Field(True, description="an elbow's solve fits the axis of the pipe before it to that "
+                                      "pipe's wall and the bend's (off: held at the straight section's end fit; a "
+                                      "short pipe between two bends came 0.3 deg off its bend, 9 mm at a sweeping "
+                                      "bend's vertex)")
 
 
 class StraightVOSettings(_Section):

@@ -13,7 +13,9 @@ axes-based centre, and says why.
 
 An elbow is joined the same way with the wall of its bend left out of the cylinder term: its straight
 pipes are the two cylinders up to where the bend begins, the points on the bend's arc (`elbow.on_arc`,
-at the bend radius found so far) count by their reprojection only, and I is its vertex.
+at the bend radius found so far) count by their reprojection only, and I is its vertex. The pipe before it
+is solved with its bend (`bundle.elbow_free_red_axis`): its axis comes from that pipe's wall and the bend's as
+the solve sees them, not from the end fit of a straight section whose heading the previous elbow set.
 """
 
 from __future__ import annotations
@@ -116,6 +118,7 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
                                  red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
                                  radius=radius, settings=settings, cylinder_points=on_wall, torus_points=on_bend,
                                  bend_radius=rho if settings.bundle.elbow_torus else None,
+                                 free_red_axis=settings.bundle.elbow_free_red_axis,
                                  through=None if j.type == "elbow" else "auto")
         except (ValueError, np.linalg.LinAlgError) as exc:
             reports.append(JoinReport(j.id, f"kept the VO chaining: the tee solve failed ({exc})"))
