@@ -13,9 +13,10 @@ axes-based centre, and says why.
 
 An elbow is joined the same way with the wall of its bend left out of the cylinder term: its straight
 pipes are the two cylinders up to where the bend begins, the points on the bend's arc (`elbow.on_arc`,
-at the bend radius found so far) count by their reprojection only, and I is its vertex. The pipe before it
-is solved with its bend (`bundle.elbow_free_red_axis`): its axis comes from that pipe's wall and the bend's as
-the solve sees them, not from the end fit of a straight section whose heading the previous elbow set.
+at the bend radius found so far) count by their reprojection only, and I is its vertex. With
+`bundle.elbow_free_red_axis` the axis of the pipe before it is solved with the bend, from that pipe's wall and
+the bend's as the solve sees them, rather than held at the end fit of a section whose heading the previous elbow
+set; the straight sections keep their own cylinders, which the elbow's wall piece is built from.
 """
 
 from __future__ import annotations
