@@ -336,17 +336,18 @@ def test_junction_jacobians_match_numerical():
     _check_gradient(prob, range(0, prob.M, 17))
 
 
-def test_elbow_jacobians_match_numerical():
+@pytest.mark.parametrize("free_red_axis", [False, True])
+def test_elbow_jacobians_match_numerical(free_red_axis):
     """An elbow's solve: the points near I on the bend's torus (bend radius rho a sixth global unknown, its
     derivatives by central differences inside the problem, hence the looser global tolerance), the others on
-    their cylinders."""
+    their cylinders; with the red axis free, its four parameters join the global block."""
     sc = make_tee_scene(n_points=150, n_red=2, n_tee=6, n_blue=2, outlier_frac=0.0, seed=6)
     bend = np.linalg.norm(sc.points0 - sc.I, axis=1) < 0.35
     prob = JunctionProblem(sc.camera, (sc.R0, sc.t0), sc.points0, sc.obs, sc.red_fit, sc.blue_fit,
                            red_pose=sc.red_pose, blue_pose=sc.blue_pose, fixed=sc.fixed, attached=sc.attached,
                            huber_px=1e6, huber_m=1e6, cylinder_points=~bend, torus_points=bend, bend_radius=0.3,
-                           through=None)
-    assert prob.n_global == 6 and bend.sum() > 10
+                           free_red_axis=free_red_axis, through=None)
+    assert prob.n_global == (10 if free_red_axis else 6) and bend.sum() > 10
     _check_gradient(prob, np.r_[np.flatnonzero(bend)[:8], np.flatnonzero(~bend)[::29]], 1e-4, 1e-5)
 
 

@@ -13,7 +13,10 @@ axes-based centre, and says why.
 
 An elbow is joined the same way with the wall of its bend left out of the cylinder term: its straight
 pipes are the two cylinders up to where the bend begins, the points on the bend's arc (`elbow.on_arc`,
-at the bend radius found so far) count by their reprojection only, and I is its vertex.
+at the bend radius found so far) count by their reprojection only, and I is its vertex. With
+`bundle.elbow_free_red_axis` the axis of the pipe before it is solved with the bend, from that pipe's wall and
+the bend's as the solve sees them, rather than held at the end fit of a section whose heading the previous elbow
+set; the straight sections keep their own cylinders, which the elbow's wall piece is built from.
 """
 
 from __future__ import annotations
@@ -116,6 +119,7 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
                                  red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
                                  radius=radius, settings=settings, cylinder_points=on_wall, torus_points=on_bend,
                                  bend_radius=rho if settings.bundle.elbow_torus else None,
+                                 free_red_axis=settings.bundle.elbow_free_red_axis,
                                  through=None if j.type == "elbow" else "auto")
         except (ValueError, np.linalg.LinAlgError) as exc:
             reports.append(JoinReport(j.id, f"kept the VO chaining: the tee solve failed ({exc})"))

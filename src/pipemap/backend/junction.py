@@ -34,6 +34,12 @@ Phi in the global block: the bend's wall, which the camera sees for as long as i
 holds the angle between the pipes and the poses through the turn, where the reprojections alone let
 the rotation drift (0.3 deg over a 30 deg sweeping bend, 10 mm at its vertex). The torus distance's
 derivatives by X are its unit normal; by Phi and rho they are taken by central differences (six numbers).
+With `free_red_axis` the red cylinder's four parameters join the global block too (their derivatives by
+central differences as well): the pipe before the elbow is fitted to its wall and the bend's as this solve sees
+them, instead of held at the straight section's end fit. A short straight between two bends takes its heading
+from the previous elbow's solve, and errors of a tenth of a degree each (its last keyframes' turn, its end
+cylinder, the previous turn) left it 0.3 deg off its own bend on elbow-cross route A seed 2: 9 mm at the
+sweeping bend's vertex, 0.54 % of Table I; with the axis free, 0.04 %.
 """
 
 from __future__ import annotations
@@ -134,7 +140,8 @@ class JunctionProblem:
     def __init__(self, camera: CameraModel, poses, points, observations, red, blue, *, red_pose: int,
                  blue_pose: int, fixed=(), attached=(), radius: float | None = None, model=None,
                  cylinder_points: np.ndarray | None = None, torus_points: np.ndarray | None = None,
-                 bend_radius: float | None = None, through: str | None = "auto", tau: float = _B.tau,
+                 bend_radius: float | None = None, free_red_axis: bool = False, through: str | None = "auto",
+                 tau: float = _B.tau,
                  huber_px: float = _B.huber_px, huber_m: float = _B.huber_m, mad_k: float = _B.mad_k,
                  outlier_passes: int = _B.outlier_passes, max_iterations: int = _B.max_iterations):
         self.camera = camera
@@ -163,7 +170,8 @@ class JunctionProblem:
         self.elbow = bend_radius is not None and bool(self.torus_points.any())
         if self.elbow and np.any(self.torus_points & self.cylinder_points):
             raise ValueError("a point cannot be on a straight pipe's wall and on the bend's")
-        self.n_global = 6 if self.elbow else 5
+        self.free_red = self.elbow and bool(free_red_axis)
+        self.n_global = (10 if self.free_red else 6) if self.elbow else 5
 
         Rr, tr, Rb, tb = R[self.red_index], t[self.red_index], R[self.blue_index], t[self.blue_index]
         red_p, r1 = _local_params(red, Rr, tr, "red")
@@ -212,6 +220,8 @@ class JunctionProblem:
         pose_delta[self.free_index >= 0] = dc
         R, t = retract(state.R, state.t, pose_delta)
         model = state.model.with_params(state.model.params + dx[:5])
+        if self.free_red:
+            model = TeeModel(model.params, model.red + dx[6:10], model.blue, model.radius)
         rho = state.rho + dx[5] if self.elbow else state.rho
         return self._attach(JunctionState(R, t, state.points + dp, model, rho))
 
@@ -294,14 +304,35 @@ class JunctionProblem:
         if not jacobians:
             return d
         J_X = bend_normals(X, model_bend(state.model, red_pose), state.rho)
-        J_g = np.empty((len(X), 6))
-        for i, eps in enumerate((1e-6,) * 5 + (1e-7,)):
-            step = np.zeros(6)
+        g = self.n_global
+        J_g = np.empty((len(X), g))
+        for i, eps in enumerate(((1e-6,) * 5 + (1e-7,) + (1e-6,) * 4)[:g]):
+            step = np.zeros(g)
             step[i] = eps
-            plus = dist(state.model.with_params(state.model.params + step[:5]), state.rho + step[5])
-            minus = dist(state.model.with_params(state.model.params - step[:5]), state.rho - step[5])
+            plus = dist(*self._moved(state, step))
+            minus = dist(*self._moved(state, -step))
             J_g[:, i] = (plus - minus) / (2 * eps)
         return d, J_X, J_g
+
+    def _moved(self, state: JunctionState, step: np.ndarray) -> tuple[TeeModel, float]:
+        """(model, rho) after a step in the global block."""
+        m = state.model
+        red = m.red + step[6:10] if self.free_red else m.red
+        return TeeModel(m.params + step[:5], red, m.blue, m.radius), state.rho + step[5]
+
+    def _red_axis_jacobian(self, state: JunctionState, on_blue: np.ndarray) -> np.ndarray:
+        """(M, 4) d (wall distance of each point's cylinder) / d C_r, by central differences."""
+        red_pose = self._red_pose(state)
+        def dist(step: np.ndarray) -> np.ndarray:
+            d_red, d_blue = self._moved(state, step)[0].distances(state.points, red_pose, jacobians=False)
+            return np.where(on_blue, d_blue, d_red)
+
+        J = np.empty((self.M, 4))
+        for i in range(4):
+            step = np.zeros(self.n_global)
+            step[6 + i] = 1e-6
+            J[:, i] = (dist(step) - dist(-step)) / 2e-6
+        return J
 
     def cost(self, state: JunctionState, inliers: np.ndarray, on_blue: np.ndarray, on_wall: np.ndarray) -> float:
         e = self.reprojection(state)[inliers]
@@ -332,11 +363,11 @@ class JunctionProblem:
         gc = st.schur.to_cam(np.einsum("kai,ka->ki", wJc, e[on]))
         W = np.swapaxes(wJc, 1, 2) @ J_point[on]
         # Observations by attached cameras depend on Phi through Q.
-        JQ = state.model.q_jacobian()[0]  # (6, 5)
-        a = st.att
-        J_tee = J_pose[a] @ (self.S_adjoint[self.attached_index[st.cam[a]]] @ JQ)  # (Ka, 2, 5)
+        JQ, JQ_red, _ = state.model.q_jacobian()  # (6, 5), (6, 4)
         if self.elbow:  # rho moves no camera
-            J_tee = np.concatenate([J_tee, np.zeros((len(J_tee), 2, 1))], axis=2)
+            JQ = np.concatenate([JQ, np.zeros((6, 1))] + ([JQ_red] if self.free_red else []), axis=1)
+        a = st.att
+        J_tee = J_pose[a] @ (self.S_adjoint[self.attached_index[st.cam[a]]] @ JQ)  # (Ka, 2, n_global)
         g = self.n_global
         wJt = w[a, None, None] * J_tee
         Ux = wJt.reshape(-1, g).T @ J_tee.reshape(-1, g)
@@ -348,7 +379,8 @@ class JunctionProblem:
             Jd_X = np.where(on_blue[:, None], Jb_X, Jr_X)
             Jd_phi = np.where(on_blue[:, None], Jb_phi, 0.0)
             if self.elbow:
-                Jd_phi = np.concatenate([Jd_phi, np.zeros((self.M, 1))], axis=1)
+                Jd_phi = np.concatenate([Jd_phi, np.zeros((self.M, 1))]
+                                        + ([self._red_axis_jacobian(state, on_blue)] if self.free_red else []), axis=1)
                 tor = self.torus_points
                 d[tor], Jd_X[tor], Jd_phi[tor] = self.torus_distance(state, tor, jacobians=True)
             wd = np.where(st.active & on_wall, self.tau * huber_weights(np.abs(d), self.huber_m), 0.0)
