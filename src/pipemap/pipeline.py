@@ -270,7 +270,7 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     up = -poses[0, :3, 1] if len(poses) else np.array([0.0, -1.0, 0.0])
     pipe_map.wall_pieces = wall_pieces(pipe_map.sections, junctions, up)
     axis_route = network_route(pipe_map.wall_pieces, [m.to_dict() for m in pipe_map.sections],
-                          [dict(j.to_dict(), first_keyframe=j.first, last_keyframe=j.last) for j in junctions],
+                          [j.pass_record() for j in junctions],
                           poses, dataset.radius_m, settings.route.up)
     if axis_route is not None:
         pipe_map.wall_pieces = with_elbows(wall_pieces(pipe_map.sections, junctions, axis_route.segments[0].up),
@@ -331,8 +331,8 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
         lost_keyframes=sum(1 for s in result.sections[1:] if not s.linked),
         sections=[s.to_dict() for s in result.sections],
         straight_sections=[m.to_dict() for m in net.sections],
-        junction_passes=[dict(j.to_dict(), method=j.method, angle_deg=round(j.angle_deg, 3),
-                              axes_gap_m=round(j.gap_m, 5), first_keyframe=j.first, last_keyframe=j.last,
+        junction_passes=[dict(j.pass_record(), method=j.method, angle_deg=round(j.angle_deg, 3),
+                              axes_gap_m=round(j.gap_m, 5),
                               **({} if j.opening is None else {"side_opening": j.opening}))
                          for j in net.junctions],
         dropped_junction_passes=[d.to_dict() for d in net.dropped],

@@ -28,7 +28,8 @@ def _map() -> PipeMap:
                 MappedSection(1, 3, 5, Cylinder(np.array([0.0, 0.01, 0]), np.array([1.0, 0, 0]), 0.2), None, None,
                               bend=(np.array([0.0, 0.1]), np.array([[0.0, 0.001, 0], [0.0, 0.002, 0]])))]
     junctions = [MappedJunction("T1", np.array([0.2, 0, 0]), 2, 2, 2, 0, 1, 90.0, "axes"),
-                 MappedJunction("T2", np.array([0.5, 0, 0]), 5, 5, 5, 1, None, float("nan"), "path")]
+                 MappedJunction("E1", np.array([0.5, 0, 0]), 5, 5, 5, 1, None, 90.0, "elbow", type="elbow",
+                                axes=np.array([[1.0, 0, 0], [0, 1.0, 0]]))]
     return PipeMap.build(keyframes, poses, points, tracks, sections, junctions)
 
 
@@ -56,6 +57,7 @@ def test_move_after_moves_later_poses_points_sections_and_junctions_rigidly():
     assert np.isclose(s1.start_h, s1.cylinder.axial(moved.poses[3, :3, 3][None])[0])
     assert np.array_equal(moved.junctions[0].centroid, [0.2, 0, 0])
     assert np.allclose(moved.junctions[1].centroid, T[:3, :3] @ [0.5, 0, 0] + T[:3, 3])
+    assert np.allclose(moved.junctions[1].axes, m.junctions[1].axes @ T[:3, :3].T)  # the elbow's solved axes
     # the map it was copied from is untouched
     assert np.array_equal(m.sections[1].cylinder.origin, [0.0, 0.01, 0]) and m.poses[5, 0, 3] == 0.5
 
@@ -73,4 +75,5 @@ def test_reanchor_moves_each_point_with_its_owner():
         assert np.allclose(out.points[i], (new[k] @ in_camera)[:3])
     j = m.junctions[1]
     assert np.allclose(out.junctions[1].centroid, (new[5] @ np.linalg.inv(m.poses[5]) @ np.append(j.centroid, 1))[:3])
+    assert np.allclose(out.junctions[1].axes, j.axes @ new[5, :3, :3].T)  # turned with its keyframe
     assert np.array_equal(out.poses, new)

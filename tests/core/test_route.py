@@ -8,6 +8,7 @@ import pytest
 
 from pipemap.errors import PipemapError
 from pipemap.inspection.export import network_geojson, plan_similarity, sections_csv
+from pipemap.inspection.network_route import legs_and_joints
 from pipemap.inspection.observations import clock_arc
 from pipemap.inspection.route import Route
 from pipemap.inspection.route_build import Joint, Leg, build_route
@@ -123,3 +124,25 @@ def test_georeferenced_geojson_names_its_coordinate_system():
         network_geojson(route, [0.0, 0.0], [0.0, plan], "British grid")
     with pytest.raises(PipemapError, match="--start-manhole"):
         network_geojson(route, crs="EPSG:27700")
+
+
+def test_an_elbow_with_solved_axes_takes_its_arc_from_them():
+    """The pass's `axes` (run.json junction_passes) and vertex place the arc exactly; the leg before, the
+    straight section's own axis 0.5 deg off, ends at the projection of the arc's start."""
+    tilt = np.radians(0.5)
+    pieces = [{"name": "S0", "start": [0.0, 0.0, 0.0], "end": [1.55, 1.55 * np.tan(tilt), 0.0]},
+              {"name": "S2", "start": [2.0, 0.45, 0.0], "end": [2.0, 1.45, 0.0]}]
+    sections = [{"section": 0, "first_keyframe": 0, "last_keyframe": 9},
+                {"section": 2, "first_keyframe": 20, "last_keyframe": 29}]
+    elbow = {"id": "E1", "type": "elbow", "centroid": [2.0, 0.0, 0.0], "bend_radius_m": 0.45,
+             "axes": [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0]], "first_keyframe": 10, "last_keyframe": 19}
+    legs, joints = legs_and_joints(pieces, sections, [elbow])
+    route = build_route(legs, joints, np.zeros(3), np.array([2.0, 1.45, 0]), UP, R, {"method": "test"})
+    line, arc, _ = route.segments
+    np.testing.assert_allclose(arc.centre, [1.55, 0.45, 0.0], atol=1e-12)
+    np.testing.assert_allclose([arc.start, arc.end], [[1.55, 0, 0], [2.0, 0.45, 0]], atol=1e-12)
+    assert np.degrees(arc.angle) == pytest.approx(90.0, abs=1e-9)
+    np.testing.assert_allclose(line.end, legs[0].project(arc.start), atol=1e-12)
+    assert line.chainage_end == arc.chainage_start
+    with pytest.raises(PipemapError, match="run.json: junction_passes E1: axes must be two non-zero 3-vectors"):
+        legs_and_joints(pieces, sections, [dict(elbow, axes=[[1.0, 0.0, 0.0]])])

@@ -16,7 +16,8 @@ pipes are the two cylinders up to where the bend begins, the points on the bend'
 at the bend radius found so far) count by their reprojection only, and I is its vertex. With
 `bundle.elbow_free_red_axis` the axis of the pipe before it is solved with the bend, from that pipe's wall and
 the bend's as the solve sees them, rather than held at the end fit of a section whose heading the previous elbow
-set; the straight sections keep their own cylinders, which the elbow's wall piece is built from.
+set. The straight sections keep their own cylinders; the elbow keeps the solved axes (`MappedJunction.axes`), which
+its arc and wall piece follow, since the cameras through the bend were solved against them.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipemap.backend.bundle import Observations
-from pipemap.backend.elbow import ARC_MARGIN_DEG, bend_of, on_arc
+from pipemap.backend.elbow import ARC_MARGIN_DEG, bend_of, model_bend, on_arc
 from pipemap.backend.junction import solve_junction
 from pipemap.backend.end_cylinders import fit_end_cylinder
 from pipemap.backend.network_map import section_points
@@ -143,6 +144,8 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
         if j.type == "elbow":
             j.bend_radius_m = float(res.bend_radius_m) if np.isfinite(res.bend_radius_m) else j.bend_radius_m
             j.modelled = True
+            solved = model_bend(res.model, res.poses[r_pose - lo])
+            j.axes = np.stack([solved.d1, solved.d2])
         reports.append(JoinReport(j.id, "tee-model", n, len(sel), len(obs), float(res.rms_px),
                                   float(res.cylinder_rms_m), float(res.model.angle_deg), float(moved), float(angle),
                                   float(res.time_s)))

@@ -77,6 +77,9 @@ class MappedJunction:
     bend_radius_m: float = float("nan")  # an elbow's, where its bend's wall fixed it
     branch: np.ndarray | None = None  # world unit direction from the centre into the side branch (side opening)
     modelled: bool = False  # an elbow solved with its bend's wall (backend/join.py): angle and bend radius from it
+    # An elbow solved with its bend: world unit directions (2, 3) of the pipe's axis into the vertex (the centroid)
+    # and out of it, as the solve found them; its arc and wall piece are tangent to these, not to the sections' axes.
+    axes: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         d = {"id": self.id, "type": self.type, "centroid": [round(float(v), 6) for v in self.centroid],
@@ -85,6 +88,14 @@ class MappedJunction:
             d["angle_deg"] = round(float(self.angle_deg), 4)
             if np.isfinite(self.bend_radius_m):
                 d["bend_radius_m"] = round(float(self.bend_radius_m), 5)
+        return d
+
+    def pass_record(self) -> dict:
+        """The pass as run.json `junction_passes` and the route builder read it: `to_dict` with its keyframes and,
+        for an elbow solved with its bend, the solved axes."""
+        d = dict(self.to_dict(), first_keyframe=self.first, last_keyframe=self.last)
+        if self.type == "elbow" and self.axes is not None:
+            d["axes"] = np.asarray(self.axes, float).round(7).tolist()
         return d
 
 

@@ -79,17 +79,21 @@ class PipeMap:
             if j.first > k:
                 j.centroid = R @ j.centroid + t
                 j.branch = None if j.branch is None else R @ j.branch
+                j.axes = None if j.axes is None else j.axes @ R.T
 
     def reanchor(self, poses: np.ndarray) -> None:
         """Corrected poses (N, 4, 4), not all by one rigid move (loop closure): each point moves rigidly with
-        its owner, each junction centre with its nearest keyframe. The sections' cylinders are left to be
-        fitted again to the moved points."""
+        its owner, each junction centre (and an elbow's solved axes) with its nearest keyframe. The sections'
+        cylinders are left to be fitted again to the moved points."""
         poses = np.asarray(poses, float)
         self.points = reanchor(self.points, self.poses[self.owners], poses[self.owners])
         for j in self.junctions:
             j.centroid = reanchor(j.centroid, self.poses[j.keyframe], poses[j.keyframe])
+            turn = poses[j.keyframe, :3, :3] @ self.poses[j.keyframe, :3, :3].T
             if j.branch is not None:
-                j.branch = poses[j.keyframe, :3, :3] @ self.poses[j.keyframe, :3, :3].T @ j.branch
+                j.branch = turn @ j.branch
+            if j.axes is not None:
+                j.axes = j.axes @ turn.T
         self.poses = poses.copy()
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipemap.errors import PipemapError
 from pipemap.inspection.route import Route
 from pipemap.inspection.route_build import Joint, Leg, build_route
 from pipemap.inspection.up import estimate_up
@@ -12,7 +13,8 @@ from pipemap.inspection.up import estimate_up
 
 def legs_and_joints(pieces: list[dict], sections: list[dict], passes: list[dict]) -> tuple[list[Leg], list[Joint]]:
     """The straight legs (one per wall piece that unrolls, in order) and the junction passes between them: the
-    pass whose keyframes lie after one leg's section and before the next one's; `gap` where there is none."""
+    pass whose keyframes lie after one leg's section and before the next one's; `gap` where there is none. An elbow
+    pass with the axes its solve found (`axes`) joins by them at its vertex (its `centroid`)."""
     span = {f"S{s['section']}": (int(s["first_keyframe"]), int(s["last_keyframe"])) for s in sections}
     legs = [Leg(str(p["name"]), np.asarray(p["start"], float), np.asarray(p["end"], float))
             for p in pieces if p.get("unroll", True) and p.get("kind", "line") == "line"]
@@ -26,11 +28,22 @@ def legs_and_joints(pieces: list[dict], sections: list[dict], passes: list[dict]
         if found is None:
             joints.append(Joint(f"{a.name}-{b.name}", "gap"))
             continue
-        bend = found.get("bend_radius_m")
+        bend, axes = found.get("bend_radius_m"), found.get("axes")
+        elbow = found.get("type") == "elbow"
         joints.append(Joint(str(found["id"]), str(found.get("type", "tee")),
-                            np.asarray(found["centroid"], float) if found.get("type") != "elbow" else None,
-                            float(bend) if bend is not None else float("nan")))
+                            np.asarray(found["centroid"], float) if not elbow or axes is not None else None,
+                            float(bend) if bend is not None else float("nan"),
+                            _unit_axes(axes, found["id"]) if elbow and axes is not None else None))
     return legs, joints
+
+
+def _unit_axes(axes, name) -> np.ndarray:
+    """An elbow pass's solved `axes` as two unit vectors (2, 3)."""
+    a = np.asarray(axes, float)
+    n = np.linalg.norm(a, axis=-1, keepdims=True) if a.shape == (2, 3) else None
+    if n is None or not np.all(np.isfinite(a)) or np.any(n < 1e-9):
+        raise PipemapError("axes must be two non-zero 3-vectors", "run.json", f"junction_passes {name}")
+    return a / n
 
 
 def network_route(pieces: list[dict], sections: list[dict], passes: list[dict], poses: np.ndarray, radius: float,

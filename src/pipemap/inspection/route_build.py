@@ -5,7 +5,11 @@ else where the two axes pass closest (or, for nearly parallel legs, halfway betw
 second's start). Each leg ends at J's projection on its axis and the next one starts at J's projection on
 its own (the axes miss each other by the millimetres of their fits; chainage runs on without a jump). At an
 elbow with a known bend radius rho and turn theta the route follows the arc tangent to both axes: it leaves
-the first axis rho tan(theta / 2) before the vertex and joins the second as far after it.
+the first axis rho tan(theta / 2) before the vertex and joins the second as far after it. Where the elbow's solve
+found the axes either side of its bend (`Joint.axes`, with the vertex as `Joint.point`), the arc is tangent to
+those instead: the cameras through the bend were solved against them, while the legs are the straight sections'
+own axes, which may miss them by a few tenths of a degree. The legs then end and start at the projections of the
+arc's ends (a few millimetres across; chainage runs on).
 """
 
 from __future__ import annotations
@@ -40,12 +44,14 @@ class Leg:
 @dataclass(frozen=True)
 class Joint:
     """What joins leg k to leg k + 1: id and type of the junction (`gap` where none was found), its centre
-    (for an elbow the vertex) or None, and an elbow's bend radius (nan: unknown)."""
+    (for an elbow the vertex) or None, an elbow's bend radius (nan: unknown) and the unit directions (2, 3) of
+    its solved axes into and out of the vertex `point` (None: the legs' own)."""
 
     id: str
     type: str
     point: np.ndarray | None = None
     bend_radius: float = float("nan")
+    axes: np.ndarray | None = None
 
 
 def closest_approach(a: Leg, b: Leg) -> np.ndarray | None:
@@ -88,8 +94,7 @@ def build_route(legs: list[Leg], joints: list[Joint], first: np.ndarray, last: n
             continue
         j = joints[k]
         if arc is not None:
-            centre, normal, angle, rho = arc
-            start = entry + length * leg.direction
+            start, centre, normal, angle, rho = arc
             e1 = (start - centre) / rho
             end = centre + rho * (np.cos(angle) * e1 + np.sin(angle) * np.cross(normal, e1))
             segments.append(RouteSegment("arc", j.id, start, end, chainage, chainage + rho * angle, up, centre,
@@ -103,24 +108,31 @@ def build_route(legs: list[Leg], joints: list[Joint], first: np.ndarray, last: n
 
 
 def _turn(a: Leg, b: Leg, joint: Joint):
-    """(where the route leaves leg a, the arc (centre, normal, angle, bend radius) or None, where it joins leg b)."""
+    """(where the route leaves leg a, the arc (start, centre, normal, angle, bend radius) or None, where it joins
+    leg b)."""
     meet = closest_approach(a, b)
     point = joint.point if joint.point is not None else meet
     if point is None:  # parallel legs and no junction centre: halfway across the gap
         point = 0.5 * (a.end + b.start)
-    d1, d2 = a.direction, b.direction
+    solved = joint.axes is not None and joint.point is not None
+    d1, d2 = (np.asarray(joint.axes[0], float), np.asarray(joint.axes[1], float)) if solved else (a.direction,
+                                                                                                  b.direction)
     angle = float(np.arccos(np.clip(d1 @ d2, -1.0, 1.0)))
     rho = joint.bend_radius
     if joint.type == "elbow" and np.isfinite(rho) and rho > 0 and np.degrees(angle) >= MIN_TURN_DEG:
-        vertex = meet if meet is not None else point
         tangent = rho * np.tan(angle / 2)
-        leave = a.project(vertex) - tangent * d1
-        join = b.project(vertex) + tangent * d2
+        if solved:
+            start = point - tangent * d1
+            leave, join = a.project(start), b.project(point + tangent * d2)
+        else:
+            vertex = meet if meet is not None else point
+            leave = start = a.project(vertex) - tangent * d1
+            join = b.project(vertex) + tangent * d2
         normal = np.cross(d1, d2)
         normal /= np.linalg.norm(normal)
         inward = d2 - (d2 @ d1) * d1
-        centre = leave + rho * inward / np.linalg.norm(inward)
-        return leave, (centre, normal, angle, rho), join
+        centre = start + rho * inward / np.linalg.norm(inward)
+        return leave, (start, centre, normal, angle, rho), join
     return a.project(point), None, b.project(point)
 
 

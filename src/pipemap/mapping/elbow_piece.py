@@ -1,8 +1,9 @@
 """An elbow's piece of pipe wall: the bent tube around the arc of its axis, in the trajectory's world frame.
 
-The arc is the route's (inspection/route_build.py): tangent to the straight pieces' axes either side, leaving
-the first bend radius x tan(angle / 2) before the vertex where the axes meet and joining the second as far
-after it, so the straight pieces end where the elbow's wall begins (`with_elbows`).
+The arc is the route's (inspection/route_build.py): tangent to the axes the elbow's solve found either side of its
+bend (where it was solved with it; else the straight pieces' axes), leaving the first bend radius x tan(angle / 2)
+before the vertex and joining the second as far after it, so that the wall is the torus the cameras through the bend
+were solved against. The straight pieces end where the elbow's wall begins (`with_elbows`).
 
 Wall coordinates, as on a straight piece (wall.py): h is metres along the arc's axis from `start` (0 there,
 `length` = bend radius x angle at `end`: chainage along the elbow); phi is the angle around the local axis,
@@ -186,8 +187,9 @@ def piece_from_dict(d: dict, where: str = "wall piece"):
 
 def with_elbows(pieces: list[dict], route) -> list[dict]:
     """run.json `wall_pieces` with an elbow piece for each arc of the route (inspection.Route), after the
-    straight piece before it; the straight pieces either side end exactly where the arc begins and ends (the
-    route's tangent points; their own ends came from the elbow's vertex and angle, a few millimetres off)."""
+    straight piece before it; the straight pieces either side end where the arc begins and ends (the projections of
+    the route's tangent points on their axes; their own ends came from the elbow's vertex and angle, a few
+    millimetres off)."""
     out = [dict(p) for p in pieces]
     by_name = {p["name"]: p for p in out}
     segs = route.segments
