@@ -151,11 +151,11 @@ class BundleSettings(_Section):
     elbow_torus: bool = Field(True, description="an elbow's solve holds the wall of its bend to a torus tangent to "
                               "both pipes' cylinders, its bend radius solved with the tee parameters (off: the bend's "
                               "wall counts by its reprojections only)")
-    elbow_free_red_axis: bool = Field(False, description="an elbow's solve fits the axis of the pipe before it to "
+    elbow_free_red_axis: bool = Field(True, description="an elbow's solve fits the axis of the pipe before it to "
                                       "that pipe's wall and the bend's instead of holding the straight section's end "
-                                      "fit (elbow-cross: Table I and elbow angles better, but the elbow's wall piece, "
-                                      "built from the straight sections' axes, then no longer meets its solved "
-                                      "cameras: sweeping bends 78-93 % within 2 mm of the true wall, held 99.7-100 %)")
+                                      "fit; the elbow's arc and wall piece follow the solved axes (elbow-cross: Table "
+                                      "I within 0.24 % instead of 0.54 %, elbow angles within 0.20 deg instead of "
+                                      "0.36)")
 
 
 class StraightVOSettings(_Section):

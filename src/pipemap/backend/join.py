@@ -14,10 +14,10 @@ axes-based centre, and says why.
 An elbow is joined the same way with the wall of its bend left out of the cylinder term: its straight
 pipes are the two cylinders up to where the bend begins, the points on the bend's arc (`elbow.on_arc`,
 at the bend radius found so far) count by their reprojection only, and I is its vertex. With
-`bundle.elbow_free_red_axis` the axis of the pipe before it is solved with the bend, from that pipe's wall and
-the bend's as the solve sees them, rather than held at the end fit of a section whose heading the previous elbow
-set. The straight sections keep their own cylinders; the elbow keeps the solved axes (`MappedJunction.axes`), which
-its arc and wall piece follow, since the cameras through the bend were solved against them.
+`bundle.elbow_free_red_axis` (the default) the axis of the pipe before it is solved with the bend, from that pipe's
+wall and the bend's as the solve sees them, rather than held at the end fit of a section whose heading the previous
+elbow set. The straight sections keep their own cylinders; the elbow keeps the solved axes (`MappedJunction.axes`),
+which its arc and wall piece follow, since the cameras through the bend were solved against them.
 """
 
 from __future__ import annotations
