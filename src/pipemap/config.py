@@ -189,6 +189,12 @@ class StraightVOSettings(_Section):
                                       "a camera that does not see the wall beside it (widest colatitude below 90 "
                                       "deg): a fisheye's chained scale holds, and on compressed footage the noise of "
                                       "its fresh points set the check off every few keyframes and shrank the run")
+    end_lookahead: int | None = Field(None, gt=0, description="a straight section's final window waits for this "
+                                      "many keyframes of the junction section after it and solves them too (None: "
+                                      "it solves when the section ends): its last keyframes see wall that no later "
+                                      "camera sees, and their heading drifts (bench_window_ends.py)")
+    end_wall_ahead_m: float = Field(0.1, ge=0, description="... with the cylinder term on the wall up to this far "
+                                    "ahead of the section's last keyframe only (the bend's wall is no cylinder)")
     min_window_points: int = Field(30, gt=0, description="fewer points: no window solve")
     min_window_keyframes: int = Field(3, gt=1)
     max_colatitude_deg: float | None = Field(70.0, gt=0, le=180, description="window observations beyond this angle "
