@@ -8,8 +8,11 @@ keyframes, 0.3 px noise, no outliers, the first pose held and nothing else) is s
 ends at keyframe 59 (the observations of keyframes 60-74 dropped) and as one that runs on to 74. Both see the same
 keyframes 0-59 with the same observations; only the end differs. Each is solved with the cylinder term (tau from
 the settings) and without it (tau = 0), and once more ending at 59 with the cylinder term on the points behind the
-last camera only. Per keyframe: the RMS over the seeds of its heading error against keyframe 30 (about the
-crawler's vertical, millidegrees), and of the difference between the two windows (the end's own effect).
+last camera only. Two remedies are measured beside them: the window ending at 59 with its axis held to the true
+direction (`axis_prior`), and the window waiting 5 keyframes past 59 (`straight_vo.end_lookahead`) with the
+cylinder term on the wall up to 0.05 or 0.1 m past keyframe 59 only (`end_wall_ahead_m`). Per keyframe: the RMS
+over the seeds of its heading error against keyframe 30 (about the crawler's vertical, millidegrees), and of the
+difference between the two windows (the end's own effect).
 """
 
 from __future__ import annotations
