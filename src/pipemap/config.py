@@ -195,6 +195,7 @@ class StraightVOSettings(_Section):
                                       "camera sees, and their heading drifts (bench_window_ends.py). Measured at 5 "
                                       "with end_wall_ahead_m 0.05, against None: elbow-cross B seed 2 Table I 0.238 "
                                       "-> 0.202 %, ATE 3.5 -> 2.6 mm; A seed 1 0.160 -> 0.137 %, 2.2 -> 1.9 mm; "
+                                      "A seed 2 0.121 -> 0.082 %, 2.0 -> 2.1 mm; "
                                       "paper-loop route A 0.481 -> 0.228 %, 14.0 -> 7.5 mm")
     end_wall_ahead_m: float = Field(0.05, ge=0, description="... with the cylinder term on the wall up to this far "
                                     "ahead of the section's last keyframe only (the bend's wall is no cylinder; "
