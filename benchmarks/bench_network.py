@@ -112,6 +112,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--data", default="/tmp/pipemap-bench")
     ap.add_argument("--out", default="/tmp/pipemap-bench/runs")
+    ap.add_argument("--set", action="append", default=[], help="settings override section.key=value (repeatable)")
     ap.add_argument("--json-out", default=None,
                     help="where to write the JSON (default benchmarks/results/network-WxH.json)")
     args = ap.parse_args()
@@ -119,16 +120,16 @@ def main() -> None:
     results: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "size": size}
     for route in args.routes:
         data = dataset(args, route)
-        cases = {f"{route}": []}
+        cases = {f"{route}": list(args.set)}
         if route == "B":
-            cases[f"{route}-no-loop-closure"] = ["loop_closure.enabled=false"]
+            cases[f"{route}-no-loop-closure"] = [*args.set, "loop_closure.enabled=false"]
         for name, overrides in cases.items():
             r = run_case(data, Path(args.out) / f"{name}-{size}", overrides)
             results[name] = r
             show(name, r)
     if args.half and "A" in results:
         frames = results["A"]["frames"] // 2
-        r = run_case(dataset(args, "A", frames), Path(args.out) / f"A-half-{size}", [])
+        r = run_case(dataset(args, "A", frames), Path(args.out) / f"A-half-{size}", list(args.set))
         results["A-half"] = r
         show("A, first half", r)
         print(f"\n   time per frame: full {results['A']['ms_per_frame']} ms, half {r['ms_per_frame']} ms")

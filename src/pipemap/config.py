@@ -189,6 +189,17 @@ class StraightVOSettings(_Section):
                                       "a camera that does not see the wall beside it (widest colatitude below 90 "
                                       "deg): a fisheye's chained scale holds, and on compressed footage the noise of "
                                       "its fresh points set the check off every few keyframes and shrank the run")
+    end_lookahead: int | None = Field(None, gt=0, description="a straight section's final window waits for this "
+                                      "many keyframes of the junction section after it and solves them too (None: "
+                                      "it solves when the section ends): its last keyframes see wall that no later "
+                                      "camera sees, and their heading drifts (bench_window_ends.py). Measured at 5 "
+                                      "with end_wall_ahead_m 0.05, against None: elbow-cross B seed 2 Table I 0.238 "
+                                      "-> 0.202 %, ATE 3.5 -> 2.6 mm; A seed 1 0.160 -> 0.137 %, 2.2 -> 1.9 mm; "
+                                      "A seed 2 0.121 -> 0.082 %, 2.0 -> 2.1 mm; "
+                                      "paper-loop route A 0.481 -> 0.228 %, 14.0 -> 7.5 mm")
+    end_wall_ahead_m: float = Field(0.05, ge=0, description="... with the cylinder term on the wall up to this far "
+                                    "ahead of the section's last keyframe only (the bend's wall is no cylinder; "
+                                    "elbow-cross B seed 2 at 0.2: Table I 0.432 %)")
     min_window_points: int = Field(30, gt=0, description="fewer points: no window solve")
     min_window_keyframes: int = Field(3, gt=1)
     max_colatitude_deg: float | None = Field(70.0, gt=0, le=180, description="window observations beyond this angle "

@@ -198,3 +198,42 @@ def test_a_slipping_scale_is_caught_by_the_wall(straight_run):
     assert max(w.rescale for w in rescaled.windows[1:]) > 1.1  # measured 1.22
     assert abs(e_caught) / true < 0.005, e_caught
     assert abs(e_rescaled) / true < 0.005, e_rescaled
+
+
+def _turn_error_mdeg(ds, result, a: int, b: int) -> float:
+    """Angle (mdeg) of keyframe b's rotation relative to keyframe a's, estimated against the truth."""
+    from pipemap.trajectory import read_tum
+
+    gt = read_tum(ds.ground_truth_dir / "poses.tum").rotations[result.indices]
+    R = result.poses[:, :3, :3]
+    E = (R[a].T @ R[b]) @ (gt[a].T @ gt[b]).T
+    return float(np.degrees(np.arccos(np.clip((np.trace(E) - 1) / 2, -1.0, 1.0)))) * 1e3
+
+
+def _ending_run(ds, keyframes, end: int, overrides):
+    from pipemap.backend.section_vo import StraightVO
+
+    vo = StraightVO(ds.camera, ds.radius_m, load_settings(overrides=overrides))
+    for kf in keyframes:
+        vo.add(kf, junction=kf.number > end)
+    return vo.finish()
+
+
+def test_a_sections_final_window_can_wait_for_the_keyframes_after_it(straight_run):
+    """The keyframes after number `end` are called a junction (the pipe runs on straight): the straight section's
+    final window waits for ten of them (end_lookahead; the run ends after nine) and solves them with it, the
+    cylinder term on the wall up to 0.3 m ahead. Its last keyframe's turn from the section's middle then no longer
+    drifts with the window's end."""
+    ds, keyframes = straight_run
+    end = 29
+    at_end = _ending_run(ds, keyframes, end, [])
+    waited = _ending_run(ds, keyframes, end, ["straight_vo.end_lookahead=10", "straight_vo.end_wall_ahead_m=0.3"])
+    for r in (at_end, waited):
+        assert [(s.first, s.last, s.kind) for s in r.sections] == [(0, end, "straight"),
+                                                                   (end + 1, len(keyframes) - 1, "junction")]
+        assert r.sections[0].windows == 2
+    # the run ends nine keyframes after the section: the waiting window solves then
+    assert at_end.windows[-1].last == end and waited.windows[-1].last == len(keyframes) - 1 == end + 9
+    # measured: 139 mdeg when the window ends with the section, 53 when it waits
+    assert _turn_error_mdeg(ds, at_end, 15, end) > 100
+    assert _turn_error_mdeg(ds, waited, 15, end) < 75

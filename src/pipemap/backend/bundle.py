@@ -17,6 +17,9 @@ axis plus offsets at knots every `bend_knot_m` along it, and the bend prior's sq
 eps. Pipe runs sag and kink at their joints by millimetres; a straight cylinder over a window of a
 few metres then pulls points and poses onto a straight line, which tilts the trajectory.
 
+An axis prior (`axis_prior`: a direction and its sigma in radians) holds the cylinder's (gamma, beta) to that
+direction's; bench_window_ends.py uses it to show that a window's end keyframes turn even with the true axis.
+
 Gauge: the poses in `fixed_poses` (default the first) are held. With the cylinder (tau > 0) its known
 radius fixes the scale, so one fixed pose is a complete gauge. With tau = 0 the scale is free: hold a
 second pose, or pass `fixed_distance=(i, j)` to keep |t_j - t_i| at its initial value (a stiff prior,
@@ -157,7 +160,8 @@ class BundleProblem:
                  max_iterations: int = _B.max_iterations,
                  fixed_distance: tuple[int, int] | None = None, distance_weight: float = 1e6,
                  bend_knot_m: float | None = None, bend_kink_deg: float = _B.bend_kink_deg,
-                 bend_offset_mm: float = _B.bend_offset_mm, bend_sag_mm: float = _B.bend_sag_mm):
+                 bend_offset_mm: float = _B.bend_offset_mm, bend_sag_mm: float = _B.bend_sag_mm,
+                 axis_prior: tuple[np.ndarray, float] | None = None):
         self.camera = camera
         R, t, X, obs = problem_inputs(poses, points, observations)
         N, M = len(R), len(X)
@@ -190,6 +194,12 @@ class BundleProblem:
             P = self.knots.prior(2, np.radians(bend_kink_deg), 1e-3 * np.array([bend_offset_mm, bend_sag_mm]))
             self.bend_prior = np.hstack([np.zeros((len(P), 4)), P])
             cyl0 = np.concatenate([cyl0, np.zeros(2 * len(self.knots))])
+        self.axis_prior = None
+        if cyl0 is not None and axis_prior is not None:
+            # the prior's direction in the same (gamma, beta) as the cylinder's, over its sigma (radians)
+            d, sigma = np.asarray(axis_prior[0], float), float(axis_prior[1])
+            ab = Cylinder(self.ref_t, d, self.radius).local_params(self.ref_R, self.ref_t)[:2]
+            self.axis_prior = (ab, 1.0 / sigma)
         self.initial = BundleState(R, t, X, cyl0)
 
     @classmethod
@@ -243,9 +253,16 @@ class BundleProblem:
             c += self.tau * float(huber_cost(np.abs(lin.dist[on]), self.huber_m).sum())
             if self.bend_prior is not None:
                 c += float(np.sum((self.bend_prior @ state.cylinder) ** 2))
+            if self.axis_prior is not None:
+                c += float(np.sum(self._axis_residual(state) ** 2))
         if self.fixed_distance is not None:
             c += self._distance_prior(state)[0] ** 2
         return c
+
+    def _axis_residual(self, state: BundleState) -> np.ndarray:
+        """(gamma, beta) of the axis off the prior's direction, over its sigma."""
+        ab, w = self.axis_prior
+        return w * (state.cylinder[:2] - ab)
 
     def _distance_prior(self, state: BundleState):
         """Residual s (|t_j - t_i| - d0) and its derivative with respect to (rho_i, rho_j)."""
@@ -291,6 +308,10 @@ class BundleProblem:
             if self.bend_prior is not None:
                 Ux += self.bend_prior.T @ self.bend_prior
                 gx += self.bend_prior.T @ (self.bend_prior @ state.cylinder)
+            if self.axis_prior is not None:
+                w = self.axis_prior[1]
+                Ux[:2, :2] += w * w * np.eye(2)
+                gx[:2] += w * self._axis_residual(state)
         # Points without inlier observations are frozen: an identity block with no gradient.
         V[~active] = np.eye(3)
         gp[~active] = 0.0

@@ -143,6 +143,7 @@ class StraightVO:
         self._resection = self.s.resection_min_points is not None and narrow
         self._resected = False  # the newest keyframe's pose was refined against its scene points (or resection is off)
         self._wall = None  # the current section's wall as its last window solve left it
+        self._ending: SectionReport | None = None  # a straight section whose final window waits (`end_lookahead`)
         self._fresh: list[np.ndarray] = []  # points triangulated since then
         self._huber_rad = self.b.huber_px * pixel_angle(camera)
 
@@ -189,7 +190,7 @@ class StraightVO:
             self._chain_first = k
         else:
             if kind != self.section.kind:
-                self._close_section()
+                self._close_section(wait=True)
                 self.sections.append(SectionReport(len(self.sections), k, k, self.section.scale, kind=kind,
                                                    linked=True))
                 self._wall, self._fresh = None, []
@@ -208,6 +209,8 @@ class StraightVO:
         if not broken:
             self._triangulate(kf)
         self._t_rel += time.perf_counter() - t0
+        if self._ending is not None and k - self._ending.last >= self.s.end_lookahead:
+            self._window(self._ending)
         n = k - self.section.first + 1
         if n == self.s.first_window or (n > self.s.first_window and n % self.b.step == 0) or self._drifted():
             self._window()
@@ -326,10 +329,16 @@ class StraightVO:
 
     # -- windows ------------------------------------------------------------------------
 
-    def _window(self) -> None:
+    def _window(self, ending: SectionReport | None = None) -> None:
+        """The current section's window, or the waiting final window of the section `ending` through the
+        keyframes since it ended."""
         t0 = time.perf_counter()
         try:
-            self._solve_window()
+            if ending is None:
+                self._solve_window(self.section, self.section.last)
+            else:
+                self._ending = None
+                self._solve_window(ending, len(self.keyframes) - 1)
         finally:
             self._t_win += time.perf_counter() - t0
 
@@ -382,25 +391,28 @@ class StraightVO:
         self._X[later] = o + f * (self._X[later] - o)
         return f
 
-    def _solve_window(self) -> None:
-        sec = self.section
+    def _solve_window(self, sec: SectionReport, last: int) -> None:
+        """Solve the window of straight section `sec` that ends at keyframe `last` (after the section's own last
+        keyframe when its final window waited for the keyframes beyond it)."""
         if sec.kind != "straight":
             return
-        last = sec.last
-        first = max(sec.first, last - self.b.window + 1)
+        first = max(sec.first, sec.last - self.b.window + 1)
         n = last - first + 1
         if n < self.s.min_window_keyframes or last <= self._solved_until:
             return
         ks, rows, pixels, uniq, inv = self._window_observations(first, last)
-        if len(uniq) < self.s.min_window_points:
+        wall = self._straight_wall(uniq, first, sec.last)
+        if wall.sum() < self.s.min_window_points:
             return
         R = np.stack(self.R[first:last + 1])
-        scaled = self._window_cylinder(uniq, first, last, R)
+        scaled = self._window_cylinder(uniq, first, last, R, wall, sec.last)
         if scaled is None:
             return
         fit, c, rescale = scaled
+        on_wall = np.zeros(len(uniq), bool)
+        on_wall[np.flatnonzero(wall)[fit.inliers]] = True
         fixed = self._held_poses(first, last)
-        kwargs = dict(fixed_poses=fixed, cylinder=fit, cylinder_reference=0, cylinder_points=fit.inliers)
+        kwargs = dict(fixed_poses=fixed, cylinder=fit, cylinder_reference=0, cylinder_points=on_wall)
         if self.b.tau <= 0 and len(fixed) < 2:
             kwargs["fixed_distance"] = (0, n - 1)
         obs = Observations(ks - first, inv, pixels)
@@ -432,12 +444,26 @@ class StraightVO:
         uniq, inv = np.unique(tids, return_inverse=True)
         return ks, rows, pixels, uniq, inv
 
-    def _window_cylinder(self, uniq: np.ndarray, first: int, last: int, R: np.ndarray):
-        """The cylinder of the window's points, after the rescale that puts them on the wall (the section's by
-        its free radius before its first window, the tail's after): (fit, window camera centres, rescale), or
-        None when no cylinder fits."""
+    def _straight_wall(self, uniq: np.ndarray, first: int, end: int) -> np.ndarray:
+        """(len(uniq),) bool: the points on the straight section's wall, those no further than `end_wall_ahead_m`
+        ahead of its last keyframe `end` when the window runs on past it."""
+        wall = np.ones(len(uniq), bool)
+        if end + 1 >= len(self.c) or not self._metric:
+            return wall
+        u = self.c[end] - self.c[first]
+        if not np.linalg.norm(u) > 0:
+            return wall
+        u = u / np.linalg.norm(u)
+        return (self._X[uniq] - self.c[end]) @ u <= self.s.end_wall_ahead_m
+
+    def _window_cylinder(self, uniq: np.ndarray, first: int, last: int, R: np.ndarray, wall: np.ndarray,
+                         end: int):
+        """The cylinder of the window's points on the straight wall (`wall`), after the rescale that puts them
+        on it (the section's by its free radius before its first window, the tail's after): (fit, window camera
+        centres, rescale), or None when no cylinder fits. `end`: the section's last keyframe."""
+        uniq = uniq[wall]
         c = np.stack(self.c[first:last + 1])
-        direction = c[-1] - c[0]
+        direction = c[end - first] - c[0]
         if np.linalg.norm(direction) <= 0:
             direction = R[0][:, 2]
         rescale = 1.0
@@ -457,8 +483,8 @@ class StraightVO:
                 rescale = self.radius / fit.free_radius
                 self._rescale_section(rescale)
                 c = np.stack(self.c[first:last + 1])
-                fit = fit_cylinder(self._X[uniq], self.radius, reference=(R[0], c[0]), direction=c[-1] - c[0],
-                                   huber=self.b.huber_m)
+                fit = fit_cylinder(self._X[uniq], self.radius, reference=(R[0], c[0]),
+                                   direction=c[end - first] - c[0], huber=self.b.huber_m)
         except (ValueError, np.linalg.LinAlgError):
             return None
         return fit, c, rescale
@@ -503,10 +529,16 @@ class StraightVO:
         self._metric = True
         return after
 
-    def _close_section(self) -> None:
-        """The final (partial) window; a fallback scale for a section with no window at all."""
-        self._window()
+    def _close_section(self, wait: bool = False) -> None:
+        """The final (partial) window; a fallback scale for a section with no window at all. `wait`: a junction
+        section follows, and a metric straight section's final window waits for its keyframes (`end_lookahead`)."""
+        if self._ending is not None:
+            self._window(self._ending)
         sec = self.section
+        if wait and self.s.end_lookahead is not None and self._metric and sec.kind == "straight":
+            self._ending = sec
+            return
+        self._window()
         if self._metric or sec.last == sec.first:
             if sec.last == sec.first and not self._metric:
                 sec.scale = "none needed"
