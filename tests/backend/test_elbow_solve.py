@@ -21,6 +21,8 @@ from pipemap.geometry.rotations import exp_so3, look_rotation
 from pipemap.inspection.route_build import Joint, Leg, build_route
 from pipemap.sim.presets import fisheye_camera
 
+from tracks import tracked_runs
+
 RADIUS, RHO, THETA = 0.15, 0.6, np.radians(45.0)
 G = exp_so3(np.array([0.2, -0.4, 0.3]))  # the scene's placement in the world
 g = np.array([1.0, 2.0, -0.5])
@@ -67,22 +69,8 @@ def elbow():
     R, t = G @ R, (c - 0.03 * Z) @ G.T + g
     X, phi = _wall(1500, rng)
     X = X @ G.T + g
-    Xc = np.einsum("nji,nmj->nmi", R, X[None] - t[:, None])
-    uv, valid = cam.project(Xc)
-    valid &= (cam.colatitude(Xc) > np.radians(20)) & (np.linalg.norm(Xc, axis=-1) < 0.9)
-    cams, pts, pix = [], [], []
-    for m in range(len(X)):
-        seen = np.flatnonzero(valid[:, m])
-        if len(seen) < 3:
-            continue
-        L = min(rng.integers(3, 9), len(seen))
-        run = seen[(start := rng.integers(0, len(seen) - L + 1)):start + L]
-        cams.append(run), pts.append(np.full(L, m)), pix.append(uv[run, m])
-    cams, pts, pix = np.concatenate(cams), np.concatenate(pts), np.concatenate(pix)
-    used = np.unique(pts)
-    remap = np.full(len(X), -1)
-    remap[used] = np.arange(len(used))
-    X, phi, pts = X[used], phi[used], remap[pts]
+    cams, pts, pix, used = tracked_runs(cam, R, t, X, rng)
+    X, phi = X[used], phi[used]
     pix = pix + rng.normal(0.0, 0.3, pix.shape)
     red_pose, blue_pose = n_red - 1, n_red + n_arc
     straight = np.isnan(phi)

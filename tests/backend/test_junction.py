@@ -27,6 +27,8 @@ from pipemap.geometry.se3 import as_rt, to_matrix
 from pipemap.geometry.tee import TeeModel
 from pipemap.sim.presets import fisheye_camera
 
+from tracks import tracked_runs
+
 RADIUS = 0.2
 G = exp_so3(np.array([0.2, -0.4, 0.3]))  # the scene's placement in the world
 g = np.array([1.0, 2.0, -0.5])
@@ -114,25 +116,8 @@ def make_tee_scene(n_points=3500, n_red=5, n_tee=40, n_blue=5, seed=0, noise_px=
         on_blue, on_cap = np.r_[on_blue, np.zeros(n_cap, bool)], np.r_[on_cap, np.ones(n_cap, bool)]
     X = X @ G.T + g
     # Observations: each point along a run of 3-8 consecutive keyframes that see it.
-    Xc = np.einsum("nji,nmj->nmi", R, X[None] - t[:, None])
-    uv, valid = cam.project(Xc)
-    valid &= (cam.colatitude(Xc) > np.radians(20)) & (np.linalg.norm(Xc, axis=-1) < 0.9)
-    cams, pts, pix = [], [], []
-    for m in range(len(X)):
-        seen = np.flatnonzero(valid[:, m])
-        if len(seen) < 3:
-            continue
-        L = min(rng.integers(3, 9), len(seen))
-        start = rng.integers(0, len(seen) - L + 1)
-        run = seen[start:start + L]
-        cams.append(run)
-        pts.append(np.full(L, m))
-        pix.append(uv[run, m])
-    cams, pts, pix = np.concatenate(cams), np.concatenate(pts), np.concatenate(pix)
-    used = np.unique(pts)
-    remap = np.full(len(X), -1)
-    remap[used] = np.arange(len(used))
-    X, on_blue, on_cap, pts = X[used], on_blue[used], on_cap[used], remap[pts]
+    cams, pts, pix, used = tracked_runs(cam, R, t, X, rng)
+    X, on_blue, on_cap = X[used], on_blue[used], on_cap[used]
     pix = pix + rng.normal(0.0, noise_px, pix.shape)
     outlier = rng.random(len(pix)) < outlier_frac
     ang = rng.uniform(0, 2 * np.pi, outlier.sum())
