@@ -12,6 +12,8 @@ from pipemap.camera import PolynomialCamera
 from pipemap.geometry.cylinder import Cylinder, rot_x, rot_z
 from pipemap.geometry.rotations import exp_so3, look_rotation
 
+from tracks import tracked_runs
+
 RADIUS = 0.2
 
 
@@ -66,25 +68,9 @@ def make_pipe_window(n_frames=80, n_points=3000, step=0.01, noise_px=0.5, outlie
     z = rng.uniform(-0.02, step * (n_frames - 1) + 0.3, n_points)
     phi = rng.uniform(-np.pi, np.pi, n_points)
     X = np.stack([RADIUS * np.cos(phi), RADIUS * np.sin(phi) + sag(z)[0], z], -1) @ G.T + g
-    Xc = np.einsum("nji,nmj->nmi", R, X[None] - t[:, None])
-    uv, valid = cam.project(Xc)
-    valid &= cam.colatitude(Xc) > np.radians(25)
-    cams, pts, pix = [], [], []
-    for m in range(n_points):
-        seen = np.flatnonzero(valid[:, m])
-        if len(seen) < 2:
-            continue
-        L = min(rng.integers(track[0], track[1] + 1), len(seen))
-        s = rng.integers(0, len(seen) - L + 1)
-        run = seen[s:s + L]
-        cams.append(run)
-        pts.append(np.full(L, m))
-        pix.append(uv[run, m])
-    cams, pts, pix = np.concatenate(cams), np.concatenate(pts), np.concatenate(pix)
-    used = np.unique(pts)  # renumber points that have observations
-    remap = np.full(n_points, -1)
-    remap[used] = np.arange(len(used))
-    X, pts = X[used], remap[pts]
+    cams, pts, pix, used = tracked_runs(cam, R, t, X, rng, track, min_seen=2, min_colatitude_deg=25.0,
+                                        max_range_m=None)
+    X = X[used]
     pix = pix + rng.normal(0.0, noise_px, pix.shape)
     outlier = rng.random(len(pix)) < outlier_frac
     ang = rng.uniform(0, 2 * np.pi, outlier.sum())
