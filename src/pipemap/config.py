@@ -357,6 +357,18 @@ class DenseSettings(_Section):
         "initial batch over the first frames (straight/mount.py); each frame is turned to a virtual camera square to "
         "the wall with image x along the pipe, and the offset sets zeta unless a reference is given; square = the "
         "report's assumption that the camera already looks square at the wall with image x along the pipe")
+    offset_station_m: float | None = Field(
+        0.3, ge=0, description="mount = estimate, no reference or offset given: the offset is measured again every "
+        "this many metres of travel (the sparse bundle batch over a few keyframes) and each pair scaled by the wall "
+        "distance of its part of the run, since the robot rides up and down by millimetres (straight/stations.py); "
+        "None or 0 = the first frames' offset for the whole run")
+    offset_station_max_tilt_deg: float = Field(3.0, gt=0, description="a station whose pipe axis (in the camera's "
+                                               "axes) is turned further than this from the run's mount is left out: "
+                                               "the camera is fixed to the robot, which wobbles by a degree or so")
+    resample_rows: bool = Field(True, description="zeta from geometry: resample every row of the view along the "
+                                "pipe by its wall depth so that an axial move shifts all rows alike (on a curved wall "
+                                "they move up to 7 % apart and a single translation fits none; undistort.py); False = "
+                                "the report's view, its rows' zetas weighted by their texture")
     rectify_max_angle_deg: float = Field(60.0, gt=0, lt=90, description="mount = estimate: the view turned square "
                                          "to the wall reaches this far along the pipe from square (beyond, one pixel "
                                          "of an oblique camera spreads over several)")

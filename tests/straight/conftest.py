@@ -6,6 +6,7 @@ import shutil
 
 import pytest
 
+from pipemap.config import Settings
 from pipemap.sim.simulate import simulate
 
 
@@ -55,3 +56,19 @@ def oblique_wall(tmp_path_factory):
     root = tmp_path_factory.mktemp("oblique")
     return simulate("wall-camera-50", root / "w50", width=480, height=360, frames=200, seed=1, route="forward",
                     workers=2)
+
+
+def short_run() -> Settings:
+    """The oblique render is 1 m long: the long batch over 40 keyframes (every third) instead of 100."""
+    s = Settings()
+    s.sparse.offset_long_keyframes = 40
+    return s
+
+
+@pytest.fixture(scope="session")
+def oblique_dense(oblique_wall, tmp_path_factory):
+    """dense-hybrid at its defaults (no reference, no offset) on the oblique render: (result folder, DenseResult)."""
+    from pipemap.straight.dense import run_dense
+
+    out = tmp_path_factory.mktemp("oblique-dense") / "res"
+    return out, run_dense(oblique_wall, out, short_run(), "dense-hybrid")

@@ -85,6 +85,39 @@ def test_turned_view_moves_along_x_only_and_as_zeta_says():
         np.mean(f / wall_depth((np.arange(*rows) - K[1, 2]) / f, radius, C[1], C[0])))
 
 
+def test_rows_resampled_to_the_wall_move_alike():
+    """With the wall's depth per row, every row of the turned view is resampled so that neighbouring pixels of any
+    row are the same axial distance z_ref / f apart on the wall (followed through the maps, the lens and the wall),
+    where the plain view's rows differ by 7 % across the band."""
+    import cv2
+
+    from pipemap.camera import PinholeCamera
+
+    cam = PinholeCamera(320, 240, dict(fx=241.0, fy=241.0, cx=159.5, cy=119.5, k1=-0.12, k2=0.02, p1=0, p2=0, k3=0))
+    radius, C = 0.19378, np.array([-0.03, -0.04, 0.0])
+
+    def spacing(rect):  # axial distance on the wall between neighbouring pixels of each row, every 10th row
+        mx, my = (m[5:-5:10, 20:-20] for m in rect.maps)
+        src = np.stack([mx.ravel(), my.ravel()], axis=-1).reshape(-1, 1, 2).astype(np.float64)
+        K = np.array([[241.0, 0, 159.5], [0, 241.0, 119.5], [0, 0, 1]])  # scale 1: the camera itself
+        xy = cv2.undistortPoints(src, K, rect.dist).reshape(-1, 2)
+        rays = np.column_stack([xy, np.ones(len(xy))]) @ rect.rotation.T
+        X, ok = wall_points(R0, C, rays / np.linalg.norm(rays, axis=1, keepdims=True), radius)
+        assert ok.all()
+        return np.diff((X[:, 2]).reshape(mx.shape), axis=1)
+
+    depth = lambda v: wall_depth(v, radius, C[1], C[0])  # noqa: E731
+    rect = Rectifier(cam, 1.0, mount=_turned(50.0), row_depth=depth)
+    h = rect.size[1]
+    z_ref = depth(np.array([((h - 1) / 2 - rect.K[1, 2]) / rect.focal_px]))[0]
+    step = spacing(rect)
+    np.testing.assert_allclose(step.mean(axis=1), z_ref / rect.focal_px, rtol=2e-5)
+    np.testing.assert_allclose(step, z_ref / rect.focal_px, rtol=1e-3)  # float32 maps
+    assert np.ptp(rect.row_gain) > 0.1  # the rows moved up to 17 % apart
+    plain = spacing(Rectifier(cam, 1.0, mount=_turned(50.0)))
+    assert np.ptp(plain.mean(axis=1)) / plain.mean() > 0.07
+
+
 def test_full_search_widens_its_range_to_the_motion():
     rng = np.random.default_rng(3)
     import cv2
@@ -102,18 +135,6 @@ def test_full_search_widens_its_range_to_the_motion():
 # --- the estimate on a render ---------------------------------------------------------------------------
 
 
-def _short_run() -> Settings:
-    """The render is 1 m long: the long batch over 40 keyframes (every third) instead of 100."""
-    s = Settings()
-    s.sparse.offset_long_keyframes = 40
-    return s
-
-
-@pytest.fixture(scope="module")
-def oblique_dense(oblique_wall, tmp_path_factory):
-    """dense-hybrid at its defaults (no reference, no offset) on the oblique render: (result folder, DenseResult)."""
-    out = tmp_path_factory.mktemp("oblique-dense") / "res"
-    return out, run_dense(oblique_wall, out, _short_run(), "dense-hybrid")
 
 
 def test_mount_of_an_oblique_camera_matches_the_truth(oblique_wall, oblique_dense):
@@ -145,7 +166,8 @@ def test_dense_run_turned_square_by_the_mount(oblique_wall, oblique_dense, tmp_p
     assert run["scale_source"] == "estimated mount" and run["rectified_by"] == "the estimated mount"
     d = evaluate(out, oblique_wall, write=False).distance.forward
     assert d.ground_truth > 0.9 and d.abs_error_pct < 0.5, d
-    square = _short_run()
+    square = Settings()
+    square.sparse.offset_long_keyframes = 40  # as the oblique_dense fixture's run
     square.dense.mount = "square"
     square.dense.camera_offset_m = -0.04
     run_dense(oblique_wall, tmp_path / "square", square, "dense-hybrid")

@@ -31,9 +31,10 @@ from pipemap.quality import FrameStats, RunVerdict, require_mappable, straight_v
 from pipemap.results import run_record, write_run_json
 from pipemap.straight.mount import Mount, estimate_mount
 from pipemap.straight.registration import Shift, adaptive_full_search, hybrid, lucas_kanade
-from pipemap.straight.scale import row_pixels_per_metre
+from pipemap.straight.scale import row_pixels_per_metre, wall_depth
 from pipemap.straight.sparse.features import flatten_light
 from pipemap.straight.sparse.geometry import R0, wall_distance
+from pipemap.straight.stations import OffsetTrack, offset_track, station_starts
 from pipemap.straight.undistort import QUARTER, Rectifier, reduction_for_wall
 from pipemap.straight.unroll import frame_images, unroll_poses, write_wall
 from pipemap.trajectory import Trajectory, write_tum
@@ -173,17 +174,19 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
         if len(indices) == 0:
             raise PipemapError("no images in the dataset", dataset.root)
         require_mappable(stats, len(indices), total, len(log.repeated), settings, dataset.root)
-        pos = integrate(shifts, view.zeta if view.row_zeta is None else np.array(feed.pair_zeta))
         idx = np.array(indices, int)
+        track = _offset_track(dataset, settings, view, idx, shifts)
+        pos = integrate(shifts, view.zeta if view.row_zeta is None else _pair_zeta(view, feed.pair_weights, idx, track))
         traj = Trajectory(dataset.times()[idx], pos, np.tile(rect.rotation, (len(idx), 1, 1)))  # camera -> virtual axes
         t1 = time.perf_counter()
         _write_trajectory_and_frames(tmp, method, traj, dataset, idx, log)
         _write_unrolled(tmp / "unrolled", dataset, view, idx[feed.stitched], pos[feed.stitched], dense, method)
         quality = straight_verdict(method, idx, traj.timestamps, pos[:, 0], view.mount, dataset.radius_m,
                                    settings.quality, scale_source=view.scale["source"])
-        seconds = {"mount": view.mount_seconds, "registration": t_reg, "write": time.perf_counter() - t1}
+        seconds = {"mount": view.mount_seconds, "offset_stations": 0.0 if track is None else track.seconds,
+                   "registration": t_reg, "write": time.perf_counter() - t1}
         seconds["total"] = time.perf_counter() - start
-        write_run_json(tmp, _run_record(method, dataset, settings, view, idx, pos, log, t_reg, quality, seconds))
+        write_run_json(tmp, _run_record(method, dataset, settings, view, idx, pos, log, t_reg, quality, seconds, track))
     return DenseResult(method, idx, shifts, scores, view.zeta, view.scale["text"], traj, rect.size, view.rows,
                        seconds, view.mount, quality)
 
@@ -201,6 +204,7 @@ class _RectifiedView:
     zeta: float
     scale: dict  # where zeta came from (_scale)
     row_zeta: np.ndarray | None
+    radius_m: float
 
 
 def _rectified_view(dataset: Dataset, settings: Settings) -> _RectifiedView:
@@ -215,10 +219,15 @@ def _rectified_view(dataset: Dataset, settings: Settings) -> _RectifiedView:
     turn = None if mount is None or not mount.determined else mount.rotation
     reduction = dense.scale or reduction_for_wall(dataset.camera, _wall_distance(dense, mount, dataset.radius_m),
                                                   dense.wall_mm_per_px)
-    rect = Rectifier(dataset.camera, reduction, dataset.yaml_path, turn, dense.rectify_max_angle_deg)
+    geometry = _scale_geometry(dense, dataset, mount)
+    depth = None
+    if geometry["source"] != "reference" and dense.resample_rows:
+        def depth(v):
+            return wall_depth(v, dataset.radius_m, geometry["offset_m"], geometry["side_m"])
+    rect = Rectifier(dataset.camera, reduction, dataset.yaml_path, turn, dense.rectify_max_angle_deg, depth)
     rows = band_rows(rect.size[1], dense.band_fraction)
-    zeta, scale, row_zeta = _scale(dense, rect, dataset, mount, rows)
-    return _RectifiedView(mount, t_mount, turn, reduction, rect, rows, zeta, scale, row_zeta)
+    zeta, scale, row_zeta = _scale(dense, rect, dataset, geometry, rows)
+    return _RectifiedView(mount, t_mount, turn, reduction, rect, rows, zeta, scale, row_zeta, dataset.radius_m)
 
 
 class _RegisteredFrames:
@@ -234,16 +243,14 @@ class _RegisteredFrames:
         self.progress, self.total = progress, total
         self.content = np.zeros(2)  # the content's displacement from the first frame
         self.weights: np.ndarray | None = None
-        self.pair_zeta: list[float] = []
+        self.pair_weights: list[np.ndarray] = []  # each pair's row weights: its first frame's texture
 
     def __call__(self, k: int, img: np.ndarray, t: np.ndarray) -> None:
         self.stats.add(img)
         self.content = self.content + t
-        row_zeta = self.view.row_zeta
-        if row_zeta is not None:
+        if self.view.row_zeta is not None:
             if k > 0:
-                w = self.weights
-                self.pair_zeta.append(float(w @ row_zeta / w.sum()) if w.sum() > 0 else self.view.zeta)
+                self.pair_weights.append(self.weights)
             self.weights = texture_weights(img, self.view.rows)
         if not self.stitched or abs(self.content[0] - self._stitched_at) >= self.stitch_min_shift:
             self.stitched.append(k)
@@ -280,8 +287,37 @@ def _write_unrolled(folder: Path, dataset: Dataset, view: _RectifiedView, idx: n
                "that see the wall, stretched to 1..255; 0 = unseen")
 
 
+def _offset_track(dataset: Dataset, settings: Settings, view: _RectifiedView, idx: np.ndarray,
+                  shifts: np.ndarray) -> OffsetTrack | None:
+    """Where the scale comes from the estimated mount, its offset measured again at stations along the run
+    (stations.py), placed by the travel the run's own mount gives."""
+    every = settings.dense.offset_station_m
+    if view.scale["source"] != "estimated mount" or not every:
+        return None
+    along = integrate(shifts, view.zeta)[:, 0]
+    starts = station_starts(idx, along, every)
+    return offset_track(dataset, settings, settings.dense.gain_correct, view.mount, starts)
+
+
+def _pair_zeta(view: _RectifiedView, pair_weights: list[np.ndarray], idx: np.ndarray,
+               track: OffsetTrack | None) -> np.ndarray:
+    """Each pair's zeta: its rows' own zetas (scale.py, at the offset of its part of the run where the offset was
+    tracked) weighted by the texture of its first frame."""
+    rect, rows, radius = view.rect, view.rows, view.radius_m
+    if track is None:
+        offsets = np.tile([view.scale["side_m"], view.scale["offset_m"]], (len(pair_weights), 1))
+    else:
+        offsets = track.at(0.5 * (idx[:-1] + idx[1:]))
+    zeta = np.full(len(pair_weights), view.zeta)
+    for k, (w, (side, offset)) in enumerate(zip(pair_weights, offsets)):
+        if w.sum() > 0:
+            zeta[k] = w @ _row_zeta(rect, radius, offset, side, rows) / w.sum()
+    return zeta
+
+
 def _run_record(method: str, dataset: Dataset, settings: Settings, view: _RectifiedView, idx: np.ndarray,
-                pos: np.ndarray, log: FootageLog, t_reg: float, quality: RunVerdict, seconds: dict) -> dict:
+                pos: np.ndarray, log: FootageLog, t_reg: float, quality: RunVerdict, seconds: dict,
+                track: OffsetTrack | None) -> dict:
     """run.json of a dense run: the common record, then the rectification and scale."""
     dense, mount, rect = settings.dense, view.mount, view.rect
     problems = []
@@ -296,7 +332,7 @@ def _run_record(method: str, dataset: Dataset, settings: Settings, view: _Rectif
         gain_corrected=bool(dense.gain_correct and dataset.has_gain_mask),
         pixels_per_metre_source=view.scale["text"],
         scale_source=view.scale["source"],
-        scale=view.scale,
+        scale=view.scale if track is None else {**view.scale, "offset_along_run": track.to_dict()},
         rectified_by=("the estimated mount" if view.turn is not None else
                       "none: the camera taken as square to the wall with image x along the pipe" +
                       ("" if mount is None else " (the images did not determine its mount)")),
@@ -320,14 +356,12 @@ def _wall_distance(dense: DenseSettings, mount: Mount | None, radius: float) -> 
     return radius
 
 
-def _scale(dense: DenseSettings, rect: Rectifier, dataset: Dataset, mount: Mount | None, rows
-           ) -> tuple[float, dict, np.ndarray | None]:
-    """zeta, where it came from (the reference dense.pixels_per_metre, the offset measured on the robot
+def _scale_geometry(dense: DenseSettings, dataset: Dataset, mount: Mount | None) -> dict:
+    """Where zeta comes from (the reference dense.pixels_per_metre, the offset measured on the robot
     dense.camera_offset_m, the estimated mount's offset, or the axis: the report's square camera, no offset) and,
-    from geometry, each registered row's own zeta (scale.py)."""
+    unless it is the reference, the camera's offset and side displacement that set it."""
     if dense.pixels_per_metre is not None:
-        zeta = float(dense.pixels_per_metre)
-        return zeta, {"source": "reference", "text": "reference dense.pixels_per_metre"}, None
+        return {"source": "reference", "text": "reference dense.pixels_per_metre"}
     if dense.camera_offset_m is not None:
         offset, side, source = float(dense.camera_offset_m), 0.0, "given offset"
         text = f"given offset dense.camera_offset_m {offset * 1e3:.2f} mm"
@@ -343,9 +377,25 @@ def _scale(dense: DenseSettings, rect: Rectifier, dataset: Dataset, mount: Mount
     else:
         offset, side, source = 0.0, 0.0, "axis"
         text = "camera assumed on the pipe axis"
-    row_zeta = row_pixels_per_metre(rect.focal_px, rect.K[1, 2], dataset.radius_m, offset, rows, side)
+    row_pixels_per_metre(1.0, 0.0, dataset.radius_m, offset, None, side)  # a camera outside the pipe: refused here
+    return {"source": source, "offset_m": offset, "side_m": side, "text": text}
+
+
+def _row_zeta(rect: Rectifier, radius: float, offset: float, side: float, rows) -> np.ndarray:
+    """Each registered row's pixels per metre of axial motion (scale.py) in the view as resampled (undistort.py)."""
+    lo, hi = int(rows[0]), int(rows[1])
+    return row_pixels_per_metre(rect.focal_px, rect.K[1, 2], radius, offset, rows, side) / rect.row_gain[lo:hi]
+
+
+def _scale(dense: DenseSettings, rect: Rectifier, dataset: Dataset, geometry: dict, rows
+           ) -> tuple[float, dict, np.ndarray | None]:
+    """zeta, where it came from, and, from geometry, each registered row's own zeta."""
+    if geometry["source"] == "reference":
+        return float(dense.pixels_per_metre), geometry, None
+    row_zeta = _row_zeta(rect, dataset.radius_m, geometry["offset_m"], geometry["side_m"], rows)
     zeta = float(np.mean(row_zeta))
-    return zeta, {"source": source, "offset_m": offset, "side_m": side,
-                  "rows": "weighted by their texture, pair by pair",
-                  "text": f"{text} (rectified focal {rect.focal_px:.3f} px, radius {dataset.radius_m} m, rows "
-                          f"{rows[0]}..{rows[1]} weighted by their texture)"}, row_zeta
+    resampled = "resampled to move alike" if np.ptp(rect.row_gain) > 0 else "weighted by their texture"
+    return zeta, {**geometry, "rows": "weighted by their texture, pair by pair",
+                  "rows_resampled_to_the_wall": bool(np.ptp(rect.row_gain) > 0),
+                  "text": f"{geometry['text']} (rectified focal {rect.focal_px:.3f} px, radius {dataset.radius_m} m, "
+                          f"rows {rows[0]}..{rows[1]} {resampled})"}, row_zeta

@@ -92,15 +92,15 @@ class Mount:
 
 
 def estimate_mount(dataset: Dataset, settings: Settings, gain_correct: bool = True,
-                   progress: Callable[[int, int], None] | None = None) -> Mount:
-    """The sparse method's front end and initial batch over the first frames of `dataset`, read until the batch
-    has settled (or the frames end). A dataset whose images cannot give the mount ends with a PipemapError."""
+                   progress: Callable[[int, int], None] | None = None, start: int = 0) -> Mount:
+    """The sparse method's front end and initial batch over the frames of `dataset` from `start`, read until the
+    batch has settled (or the frames end). A dataset whose images cannot give the mount ends with a PipemapError."""
     sp = settings.sparse
     selector = KeyframeSelector(dataset.camera, sp, settings.seed, not (gain_correct and dataset.has_gain_mask))
     odometry = SparseOdometry(dataset.camera, dataset.radius_m, sp, settings.seed)
     most = max(sp.offset_batch_keyframes, sp.offset_long_keyframes)  # every batch has run by then
     n = 0
-    for frame in dataset.frames(gain_correct=gain_correct):
+    for frame in dataset.frames(start, gain_correct=gain_correct):
         if frame.repeated:
             continue
         for link in selector.push(frame.index, frame.image):

@@ -15,9 +15,19 @@ camera spreads over several rectified ones); across it the rows every column of 
 focal length is the reduced camera's, raised where the turn compresses the near wall so that no part
 of it is sampled more coarsely than the reduced image. For a camera square to the wall the window is
 the undistorted image itself.
+
+On a curved wall the rows of that view move apart: a row that sees the wall at depth z(v) moves by
+f dh / z(v) when the camera moves dh along the axis (7 % between the band's edges for a camera 4 cm off
+the axis of a 388 mm pipe), so a single image translation fits no row exactly, and what it measures
+depends on where the texture is. Given the wall's depth per row (`row_depth`, from the radius and the
+camera's offset, scale.py), every row is resampled along x by z(v) / z_ref (z_ref: the middle row's),
+so that an axial move shifts every row by the same f dh / z_ref; `row_gain` is that factor per row and
+the window is cut to the columns every row then has.
 """
 
 from __future__ import annotations
+
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -36,7 +46,7 @@ class Rectifier:
     """
 
     def __init__(self, camera: CameraModel, scale: float, where=None, mount: np.ndarray | None = None,
-                 max_angle_deg: float = 60.0):
+                 max_angle_deg: float = 60.0, row_depth: Callable[[np.ndarray], np.ndarray] | None = None):
         if not isinstance(camera, PinholeCamera):
             raise PipemapError(
                 f"dense VO needs a perspective (pinhole) camera looking at the wall; the {camera.model} camera is a "
@@ -59,7 +69,42 @@ class Rectifier:
             self.K, self.size = square_window(K, (w, h), self.rotation, max_angle_deg, where)
         self._map1, self._map2 = cv2.initUndistortRectifyMap(K, self.dist, self.rotation, self.K, self.size,
                                                              cv2.CV_32FC1)
+        self.row_gain = np.ones(self.size[1])  # virtual-view pixels per resampled pixel along x, per row
+        if row_depth is not None:
+            self._equalise_rows(row_depth, where)
         self.valid = (self._map1 >= 0) & (self._map1 <= w - 1) & (self._map2 >= 0) & (self._map2 <= h - 1)
+
+    def _equalise_rows(self, row_depth: Callable[[np.ndarray], np.ndarray], where) -> None:
+        """Resample each row along x by its wall depth over the middle row's (module docstring)."""
+        w, h = self.size
+        cx, cy = self.K[0, 2], self.K[1, 2]
+        depth = np.asarray(row_depth((np.arange(h) - cy) / self.K[1, 1]), float)
+        ref = float(np.asarray(row_depth(np.array([((h - 1) / 2 - cy) / self.K[1, 1]])), float)[0])
+        if not (np.all(np.isfinite(depth)) and np.all(depth > 0) and ref > 0):
+            raise PipemapError("the wall's depth is undefined on some rows of the view turned square to it", where,
+                               "camera_offset_m")
+        gain = ref / depth  # virtual x = cx + (x' - cx) * gain: the near rows spread, the far ones shrink
+        g = float(gain.max())
+        lo, hi = cx - cx / g, cx + (w - 1 - cx) / g  # the columns x' every row has
+        width = int(np.floor(hi - lo + 1e-9)) + 1
+        if width < 16:
+            raise PipemapError(f"the view with its rows resampled to the wall is {width} px wide; too small to "
+                               "register", where, "dense.scale")
+        x = cx + (lo + np.arange(width)[None, :] - cx) * gain[:, None]
+        i0 = np.clip(np.floor(x).astype(int), 0, w - 2)
+        t = (x - i0).astype(np.float32)
+        maps = [np.take_along_axis(m, i0, 1) * (1 - t) + np.take_along_axis(m, i0 + 1, 1) * t
+                for m in (self._map1, self._map2)]
+        self._map1, self._map2 = (np.ascontiguousarray(m, np.float32) for m in maps)
+        self.K = self.K.copy()
+        self.K[0, 2] = cx - lo
+        self.size = (width, h)
+        self.row_gain = gain
+
+    @property
+    def maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where each pixel of the view is sampled in the reduced frame: (x, y), each (height, width)."""
+        return self._map1, self._map2
 
     @property
     def focal_px(self) -> float:
