@@ -132,6 +132,28 @@ def tee_figures(truth: Truth, sections, junctions, poses: np.ndarray, n: np.ndar
     return rows
 
 
+def section_figures(truth: Truth, sections, junctions, poses: np.ndarray, n: np.ndarray) -> list[dict]:
+    """Per straight section beside a tee, the error of the camera's heading against the section's whole axis: the
+    median over its middle half, at its first and at its last keyframe (deg)."""
+    pipe = {}
+    for i, j in enumerate(junctions):
+        pipe.setdefault(j.before, i)  # T<i+1> ends S<i>
+        pipe.setdefault(j.after, i + 1)
+    rows = []
+    for m in sections:
+        if m.number not in pipe or m.cylinder is None:
+            continue
+        axis, t_axis = along(m.cylinder, poses, m.first, m.last), truth.section(pipe[m.number], "full")
+        ks = np.arange(m.first, m.last + 1)
+        err = np.array([turn_deg(axis, poses[k, :3, 2], n) - turn_deg(t_axis, truth.R[k][:, 2], truth.n)
+                        for k in ks])
+        middle = err[len(ks) // 4: max(len(ks) // 4 + 1, 3 * len(ks) // 4)]
+        rows.append({"section": m.number, "keyframes": [m.first, m.last],
+                     "middle_deg": round(float(np.median(middle)), 4), "first_deg": round(float(err[0]), 4),
+                     "last_deg": round(float(err[-1]), 4)})
+    return rows
+
+
 def table_one(truth: Truth, tees) -> list[dict]:
     est = {t.id: np.asarray(t.centroid, float) for t in tees}
     rows = []
@@ -160,6 +182,7 @@ def measure(data: Path, cache: Path, overrides: list[str]) -> dict:
         row["vo"] = {"estimate": before["estimate"], "error": before["error"]}
     table = table_one(truth, net.tees)
     return {"data": str(data), "overrides": overrides, "tees": tees, "table_one": table,
+            "sections": section_figures(truth, net.map.sections, net.junctions, poses, n),
             "table_one_max_pct": max((abs(r["error_pct"]) for r in table), default=None),
             "tee_solves": [r.to_dict() for r in net.joins]}
 
@@ -172,6 +195,9 @@ def show(r: dict) -> None:
         print(f"  {t['tee']:<4} " + "".join(f"{t['error'][k]:+11.3f}" for k in keys))
         print(f"  {'vo':<4} " + "".join(f"{t['vo']['error'][k]:+11.3f}" for k in keys))
         print("  true " + "".join(f"{t['truth'][k]:+11.3f}" for k in keys))
+    print("  camera heading against its section's axis (error, deg): " + ", ".join(
+        f"S{x['section']} first {x['first_deg']:+.3f} middle {x['middle_deg']:+.3f} last {x['last_deg']:+.3f}"
+        for x in r["sections"]))
     print("  Table I: " + ", ".join(f"{x['pair']} {x['error_pct']:+.3f} %" for x in r["table_one"])
           + f"; max {r['table_one_max_pct']:.3f} %")
 
