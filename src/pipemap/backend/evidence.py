@@ -11,7 +11,8 @@ without one it is dropped and reported, and the straight sections either side st
 A pass with a straight section on one side only (the run starts or ends in it) is kept as it is.
 
 A pass whose axes turn is a tee when one pipe runs on past the point where they meet, a cross when
-both do, and an elbow when none does (`elbow.pipe_beyond`); an elbow keeps the axes' meeting point
+both do, and an elbow when none does (`elbow.pipe_beyond`) and its wall bends no tighter than a pipe diameter
+(`pass_type`); an elbow keeps the axes' meeting point
 (its vertex) and their angle, gets its bend radius from the wall of the bend (`elbow.fit_bend_radius`),
 and is not joined by the tee model, whose two cylinders meeting at a corner are not its shape.
 """
