@@ -226,9 +226,10 @@ def bend_labels(labels: dict, keyframe_indices: np.ndarray, bends: np.ndarray | 
             if labels.get(i) == "straight"}
 
 
-def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> NetworkResult:
-    """Stage 2: metric VO of the straight sections (III-C) chained through the junctions, then the
-    sections' cylinders and the tee centres (III-D), the tee model and loop closure on the map."""
+def straight_vo(front: FrontEndResult, dataset: Dataset, settings: Settings) -> tuple[StraightVO, StraightResult,
+                                                                                     np.ndarray]:
+    """Stage 2's metric VO of the straight sections (III-C) chained through the junctions: the VO, its result and
+    which keyframes are in a bend the images did not classify."""
     vo = StraightVO(dataset.camera, dataset.radius_m, settings)
     junction = keyframe_labels(front.keyframes, front.classes)
     c = settings.classification
@@ -238,7 +239,15 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
         junction |= bends
     for kf, j in zip(front.keyframes, junction):
         vo.add(kf, junction=bool(j))
-    result = vo.finish()
+    return vo, vo.finish(), bends
+
+
+def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings,
+                straight: tuple[StraightVO, StraightResult, np.ndarray] | None = None) -> NetworkResult:
+    """Stage 2: metric VO of the straight sections (III-C) chained through the junctions, then the
+    sections' cylinders and the tee centres (III-D), the tee model and loop closure on the map.
+    `straight`: `straight_vo`'s result, when it was already run with these settings."""
+    vo, result, bends = straight if straight is not None else straight_vo(front, dataset, settings)
     t = time.perf_counter()
 
     def fitted_sections(poses: np.ndarray, points: np.ndarray) -> list[MappedSection]:
@@ -402,5 +411,5 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
                           seconds, front.footage, front.mask, net.quality)
 
 
-__all__ = ["FrontEndResult", "NetworkResult", "PipelineResult", "track_and_classify", "map_network",
+__all__ = ["FrontEndResult", "NetworkResult", "PipelineResult", "track_and_classify", "straight_vo", "map_network",
            "keyframe_labels", "run_pipeline", "write_results", "write_junctions"]

@@ -91,3 +91,41 @@ def test_bend_normals_match_numerical():
     num = np.stack([(bend_residuals(P + e, bend, 0.5, R)[0] - bend_residuals(P - e, bend, 0.5, R)[0]) / 2e-6
                     for e in np.eye(3) * 1e-6], axis=1)
     np.testing.assert_allclose(J, num, atol=1e-6)
+
+
+def _tee_corner_points(rng, n: int = 6000, stub: int = 20, noise: float = 0.0005):
+    """A tee's wall as a camera turning from its run into its branch sees it: the run along +x up to the vertex at
+    the origin, the branch leaving along +y from the run's wall, and only `stub` points on the run past the vertex.
+    Returns the points and the two straight cylinders."""
+    def pipe(start, d, length, m):
+        h = rng.uniform(0, length, m)
+        f = np.cross(d, [0, 0, 1.0])
+        w = rng.uniform(-np.pi, np.pi, m)
+        return start + np.outer(h, d) + R * (np.outer(np.cos(w), f) + np.outer(np.sin(w), [0, 0, 1.0]))
+    x, y = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    run = pipe(-1.0 * x, x, 1.0, n)
+    run = run[~((run[:, 1] > 0) & (np.abs(run[:, 0]) < R))]  # the branch's mouth
+    branch = pipe(np.zeros(3), y, 1.0, n)
+    branch = branch[branch[:, 1] ** 2 + branch[:, 2] ** 2 > R ** 2]  # inside the run
+    P = np.vstack([run, branch, pipe(np.zeros(3), x, 0.6, stub)])
+    return P + rng.normal(0, noise, P.shape), Cylinder(-0.5 * x, x, R), Cylinder(0.5 * y, y, R)
+
+
+@pytest.mark.parametrize("seed", [6, 7])
+def test_a_tee_whose_run_on_pipe_shows_few_points_is_no_elbow(seed):
+    """Too few points past the vertex to show the run-on pipe: the wall's corner fits a bend radius under the pipe's
+    diameter, tighter than any elbow made, and the pass stays a tee; a true elbow's stays an elbow."""
+    from pipemap.backend.evidence import pass_type
+    rng = np.random.default_rng(seed)
+    P, a, b = _tee_corner_points(rng)
+    bend = bend_of(a, b, np.zeros(3))
+    beyond = pipe_beyond(P, a, b, bend, 0.02)
+    assert max(beyond) < 30
+    fit = fit_bend_radius(P, bend, R, huber_m=0.005, mad_k=3.0, outlier_passes=3)
+    rho = float("nan") if fit is None else fit.bend_radius_m
+    assert pass_type(beyond, rho, R, 30) == "tee"
+    P, a, b = _elbow_points(rng, 90.0, 0.45)
+    bend = bend_of(a, b, np.zeros(3))
+    fit = fit_bend_radius(P, bend, R, huber_m=0.005, mad_k=3.0, outlier_passes=3)
+    assert abs(fit.bend_radius_m - 0.45) < 0.005 * 0.45
+    assert pass_type(pipe_beyond(P, a, b, bend, 0.02), fit.bend_radius_m, R, 30) == "elbow"

@@ -11,7 +11,8 @@ without one it is dropped and reported, and the straight sections either side st
 A pass with a straight section on one side only (the run starts or ends in it) is kept as it is.
 
 A pass whose axes turn is a tee when one pipe runs on past the point where they meet, a cross when
-both do, and an elbow when none does (`elbow.pipe_beyond`); an elbow keeps the axes' meeting point
+both do, and an elbow when none does (`elbow.pipe_beyond`) and its wall bends no tighter than a pipe diameter
+(`pass_type`); an elbow keeps the axes' meeting point
 (its vertex) and their angle, gets its bend radius from the wall of the bend (`elbow.fit_bend_radius`),
 and is not joined by the tee model, whose two cylinders meeting at a corner are not its shape.
 """
@@ -119,12 +120,25 @@ def type_turning_passes(pipe_map: PipeMap, radius: float, settings: Settings) ->
             off = np.abs(bend_residuals(points, bend, rho, radius)[0]) > 4 * b.huber_m
             points = points[off | ~on_arc(points, bend, rho, margin_deg=-ARC_MARGIN_DEG)]
         beyond = pipe_beyond(points, end, start, bend, 4 * b.huber_m)
-        if min(beyond) >= e.opening_min_points:
-            j.type = "cross"
-        if max(beyond) >= e.opening_min_points:
-            continue
-        j.type, j.method, j.angle_deg, j.bend_radius_m = "elbow", "elbow", bend.angle_deg, rho
+        kind = pass_type(beyond, rho, radius, e.opening_min_points)
+        if kind == "elbow":
+            j.type, j.method, j.angle_deg, j.bend_radius_m = "elbow", "elbow", bend.angle_deg, rho
+        else:
+            j.type = kind
     return out
+
+
+def pass_type(beyond: tuple[int, int], rho: float, radius: float, min_points: int) -> str:
+    """"tee", "cross" or "elbow" from the points on each pipe past the vertex (`elbow.pipe_beyond`) and the bend
+    radius the wall was fitted with (nan: none). A bend's wall is a torus about its arc; the tightest elbows made
+    (short radius) bend at one pipe diameter. The corner where two pipes meet fits one under the pipe's radius
+    (0.7-0.8 of it at paper-loop's tees): a fit under the diameter found a tee whose run-on pipe showed too few
+    points to count (compressed footage: 22-26 of the 30 on paper-loop route A), not an elbow."""
+    if min(beyond) >= min_points:
+        return "cross"
+    if max(beyond) >= min_points or (np.isfinite(rho) and rho < 2.0 * radius):
+        return "tee"
+    return "elbow"
 
 
 def _bend_radius(points: np.ndarray, bend, radius: float, settings: Settings) -> float:
@@ -150,4 +164,4 @@ def fit_elbow_bends(pipe_map: PipeMap, radius: float, settings: Settings) -> Pip
     return out
 
 
-__all__ = ["DroppedPass", "weigh_junction_evidence", "type_turning_passes", "fit_elbow_bends"]
+__all__ = ["DroppedPass", "weigh_junction_evidence", "type_turning_passes", "pass_type", "fit_elbow_bends"]
