@@ -114,7 +114,8 @@ def _tee_corner_points(rng, n: int = 6000, stub: int = 20, noise: float = 0.0005
 @pytest.mark.parametrize("seed", [6, 7])
 def test_a_tee_whose_run_on_pipe_shows_few_points_is_no_elbow(seed):
     """Too few points past the vertex to show the run-on pipe: the wall's corner fits a bend radius under the pipe's
-    diameter, tighter than any elbow made, and the pass stays a tee; a true elbow's stays an elbow."""
+    radius, tighter than any elbow made, and the pass stays a tee; a true elbow's stays an elbow, a short-radius one
+    (one diameter) included."""
     from pipemap.backend.evidence import pass_type
     rng = np.random.default_rng(seed)
     P, a, b = _tee_corner_points(rng)
@@ -129,3 +130,11 @@ def test_a_tee_whose_run_on_pipe_shows_few_points_is_no_elbow(seed):
     fit = fit_bend_radius(P, bend, R, huber_m=0.005, mad_k=3.0, outlier_passes=3)
     assert abs(fit.bend_radius_m - 0.45) < 0.005 * 0.45
     assert pass_type(pipe_beyond(P, a, b, bend, 0.02), fit.bend_radius_m, R, 30) == "elbow"
+    # a short-radius elbow (one diameter) found 5 % tight stays an elbow: the limit sits halfway, at 0.75 D
+    P, a, b = _elbow_points(rng, 90.0, 2 * R)
+    bend = bend_of(a, b, np.zeros(3))
+    fit = fit_bend_radius(P, bend, R, huber_m=0.005, mad_k=3.0, outlier_passes=3)
+    assert abs(fit.bend_radius_m - 2 * R) < 0.005 * 2 * R
+    beyond = pipe_beyond(P, a, b, bend, 0.02)
+    assert pass_type(beyond, fit.bend_radius_m, R, 30) == "elbow"
+    assert pass_type(beyond, 0.95 * fit.bend_radius_m, R, 30) == "elbow"

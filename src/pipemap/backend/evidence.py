@@ -11,8 +11,8 @@ without one it is dropped and reported, and the straight sections either side st
 A pass with a straight section on one side only (the run starts or ends in it) is kept as it is.
 
 A pass whose axes turn is a tee when one pipe runs on past the point where they meet, a cross when
-both do, and an elbow when none does (`elbow.pipe_beyond`) and its wall bends no tighter than a pipe diameter
-(`pass_type`); an elbow keeps the axes' meeting point
+both do, and an elbow when none does (`elbow.pipe_beyond`) and its wall bends no tighter than three quarters of a pipe
+diameter (`pass_type`); an elbow keeps the axes' meeting point
 (its vertex) and their angle, gets its bend radius from the wall of the bend (`elbow.fit_bend_radius`),
 and is not joined by the tee model, whose two cylinders meeting at a corner are not its shape.
 """
@@ -132,11 +132,12 @@ def pass_type(beyond: tuple[int, int], rho: float, radius: float, min_points: in
     """"tee", "cross" or "elbow" from the points on each pipe past the vertex (`elbow.pipe_beyond`) and the bend
     radius the wall was fitted with (nan: none). A bend's wall is a torus about its arc; the tightest elbows made
     (short radius) bend at one pipe diameter. The corner where two pipes meet fits one under the pipe's radius
-    (0.7-0.8 of it at paper-loop's tees): a fit under the diameter found a tee whose run-on pipe showed too few
-    points to count (compressed footage: 22-26 of the 30 on paper-loop route A), not an elbow."""
+    (0.7-0.8 of it at paper-loop's tees): a fit under three quarters of the diameter, halfway between the two, found
+    a tee whose run-on pipe showed too few points to count (compressed footage: 22-26 of the 30 on paper-loop route
+    A), not an elbow."""
     if min(beyond) >= min_points:
         return "cross"
-    if max(beyond) >= min_points or (np.isfinite(rho) and rho < 2.0 * radius):
+    if max(beyond) >= min_points or (np.isfinite(rho) and rho < 1.5 * radius):
         return "tee"
     return "elbow"
 
