@@ -365,6 +365,12 @@ class DenseSettings(_Section):
     offset_station_max_tilt_deg: float = Field(3.0, gt=0, description="a station whose pipe axis (in the camera's "
                                                "axes) is turned further than this from the run's mount is left out: "
                                                "the camera is fixed to the robot, which wobbles by a degree or so")
+    rerectify_min_pct: float | None = Field(0.02, gt=0, description="with offset stations: where turning the view "
+                                            "from the first frames' mount to the stations' mean pipe axis changes the "
+                                            "scale by more than this (per cent; a view tilted along the pipe by delta "
+                                            "scales its motion by 2 delta tan(theta) at theta off its principal point: "
+                                            "0.29 % at a 75 deg mount for 0.24 deg), the frames are turned to it and "
+                                            "registered again; None: never")
     resample_rows: bool = Field(True, description="zeta from geometry: resample every row of the view along the "
                                 "pipe by its wall depth so that an axial move shifts all rows alike (on a curved wall "
                                 "they move up to 7 % apart and a single translation fits none; undistort.py); False = "

@@ -163,7 +163,9 @@ def test_dense_run_turned_square_by_the_mount(oblique_wall, oblique_dense, tmp_p
     square camera on the same frames, with the offset given, is far off: the oblique view is no translation."""
     out, res = oblique_dense
     run = json.loads((out / "run.json").read_text())
-    assert run["scale_source"] == "estimated mount" and run["rectified_by"] == "the estimated mount"
+    assert run["scale_source"] == "estimated mount"
+    assert run["rectified_by"] in ("the estimated mount", "the mean pipe axis of the offset stations (turning to it "
+                                   "changed the scale by more than dense.rerectify_min_pct)")
     d = evaluate(out, oblique_wall, write=False).distance.forward
     assert d.ground_truth > 0.9 and d.abs_error_pct < 0.5, d
     square = Settings()

@@ -34,6 +34,7 @@ class OffsetTrack:
     offsets: np.ndarray  # (S, 2) C_X, C_Y in metres
     sigmas: np.ndarray  # (S,) standard deviation of C_Y in metres (nan where unknown)
     spans: np.ndarray  # (S, 2) first and last keyframe (frame index) of each station's batch
+    axes: np.ndarray  # (S, 3) the pipe axis in camera axes, the run's sense
     skipped: tuple[tuple[int, str], ...] = ()  # (start frame, why) of the stations left out
     seconds: float = 0.0
 
@@ -84,6 +85,7 @@ def offset_track(dataset: Dataset, settings: Settings, gain_correct: bool, first
     offsets = [np.asarray(first.offset_m, float)]
     sigmas = [_c_y_sigma(first)]
     spans = [_span(first)]
+    axes = [np.asarray(first.rotation[2], float)]
     skipped: list[tuple[int, str]] = []
     for start in starts:
         try:
@@ -99,19 +101,22 @@ def offset_track(dataset: Dataset, settings: Settings, gain_correct: bool, first
             skipped.append((start, f"its pipe axis is {tilt:.1f} deg from the run's mount"))
             continue
         off = np.asarray(mount.offset_m, float).copy()  # Y is where the camera looks, at every station
-        if mount.rotation[2] @ first.rotation[2] < 0:  # that batch took the pipe axis the other way round
-            off[0] = -off[0]
+        axis = np.asarray(mount.rotation[2], float)
+        if axis @ first.rotation[2] < 0:  # that batch took the pipe axis the other way round
+            off[0], axis = -off[0], -axis
         frames.append(float(np.mean(mount.keyframes)))
         offsets.append(off)
         sigmas.append(_c_y_sigma(mount))
         spans.append(_span(mount))
+        axes.append(axis)
     keep = consistent(np.array(offsets), sigmas)
     for k in np.flatnonzero(~keep):
         skipped.append((spans[k][0], f"an outlier: C_X {offsets[k][0] * 1e3:.2f} mm, C_Y {offsets[k][1] * 1e3:.2f} mm "
                                      "against the other stations'"))
     order = [k for k in np.argsort(frames, kind="stable") if keep[k]]
     return OffsetTrack(np.array(frames)[order], np.array(offsets)[order], np.array(sigmas)[order],
-                       np.array(spans, int)[order], tuple(sorted(skipped)), time.perf_counter() - t0)
+                       np.array(spans, int)[order], np.array(axes)[order], tuple(sorted(skipped)),
+                       time.perf_counter() - t0)
 
 
 def consistent(offsets: np.ndarray, sigmas: list[float], k: float = 5.0) -> np.ndarray:
