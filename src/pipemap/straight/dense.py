@@ -14,7 +14,7 @@ carries the mount); only the camera centre moves.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
@@ -165,7 +165,7 @@ def run_dense(dataset_path, out_dir, settings: Settings | None = None, method: s
         track = _offset_track(dataset, settings, view, idx, shifts)
         turn = _mean_turn(view, track, dense.rerectify_min_pct)
         if turn is not None:  # the run's mean pipe axis is off the first frames': turn the view to it, register again
-            view = _rectified_view(dataset, settings, view.mount, turn)
+            view = replace(_rectified_view(dataset, settings, view.mount, turn), mount_seconds=view.mount_seconds)
             reg = _register(dataset, view, settings, method, progress)
             idx, shifts, scores, feed, log = reg.indices, reg.shifts, reg.scores, reg.feed, reg.log
         t_reg = time.perf_counter() - start - (0.0 if track is None else track.seconds)
