@@ -164,7 +164,7 @@ def test_dense_run_turned_square_by_the_mount(oblique_wall, oblique_dense, tmp_p
     out, res = oblique_dense
     run = json.loads((out / "run.json").read_text())
     assert run["scale_source"] == "estimated mount"
-    assert run["seconds"]["mount"] > 0 and run["seconds"]["mount"] == pytest.approx(res.seconds["mount"])
+    assert run["seconds"]["mount"] > 0 and run["seconds"]["mount"] == pytest.approx(res.seconds["mount"], abs=1e-3)
     assert run["rectified_by"] in ("the estimated mount", "the mean pipe axis of the offset stations (turning to it "
                                    "changed the scale by more than dense.rerectify_min_pct)")
     d = evaluate(out, oblique_wall, write=False).distance.forward
