@@ -59,6 +59,27 @@ def test_clock_convention_and_round_trip():
     np.testing.assert_allclose((back[1] - clock + 180) % 360 - 180, 0.0, atol=1e-7)
 
 
+def test_points_taken_in_parts_and_by_their_known_segment_locate_as_all_at_once(monkeypatch):
+    """Map points go through to_route a part at a time (memory) and, where their wall piece is known, on that
+    segment alone: the same coordinates as every segment's candidates of all points at once."""
+    import pipemap.inspection.route as route_module
+
+    route, _ = elbow_route()
+    rng = np.random.default_rng(2)
+    points = route.from_route(rng.uniform(0.0, route.length, 500), rng.uniform(0.0, 360.0, 500))
+    points += rng.normal(0.0, 0.003, points.shape)
+    whole = route.to_route(points, wall=True)
+    near = whole[0] + rng.uniform(-0.2, 0.2, 500)
+    whole_near = route.to_route(points, wall=True, near_chainage=near)
+    monkeypatch.setattr(route_module, "POINTS_AT_ONCE", 64)
+    for got, want in zip(route.to_route(points, wall=True), whole):
+        np.testing.assert_array_equal(got, want)
+    for got, want in zip(route.to_route(points, wall=True, near_chainage=near), whole_near):
+        np.testing.assert_array_equal(got, want)
+    for got, want in zip(route.to_route(points, wall=True, segment=whole[3]), whole):
+        np.testing.assert_allclose(got, want, atol=1e-12)
+
+
 def test_up_from_image_up_and_camera_side():
     rng = np.random.default_rng(1)
     n = 40

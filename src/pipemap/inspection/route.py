@@ -25,6 +25,7 @@ TWO_PI = 2 * np.pi
 SIGHT_RADII = 10.0  # how far along the pipe from the camera a located wall point may lie
 NODE_TOLERANCE_M = 1e-3  # route.json keeps junction chainage to 0.1 mm, segment ends to 1 um
 PASS_TOLERANCE_RADII = 1.0  # where the route passes a place twice, the passes that fit this well compete
+POINTS_AT_ONCE = 1 << 18  # to_route's chunk of points (every segment's candidates of each are held)
 
 
 @dataclass(frozen=True)
@@ -138,16 +139,40 @@ class Route:
         Each point belongs to the segment it lies nearest inside: beyond its ends counts as distance, and
         for wall points (`wall`) so does the distance of the radial offset from the radius. The route's
         first and last segments reach on past its ends. Where the route passes a place twice (a loop),
-        `near_chainage` (n,) (the camera's) leaves out passes out of its sight."""
-        chain, clock_all, rho_all, cost = self._candidates(points, wall)
-        n = chain.shape[1]
+        `near_chainage` (n,) (the camera's) leaves out passes out of its sight.
+
+        Points are taken POINTS_AT_ONCE at a time: every segment's candidates of ten million map points
+        at once took 3 GB."""
+        p = np.atleast_2d(np.asarray(points, float))
+        n = len(p)
         forced = None if segment is None else np.broadcast_to(np.asarray(segment, int), (n,))
         if forced is not None and (forced >= 0).all():
-            best = forced
-        elif near_chainage is not None:
+            return self._on_segments(p, forced)
+        near = None if near_chainage is None else np.broadcast_to(np.asarray(near_chainage, float), (n,))
+        parts = [self._located(p[a:a + POINTS_AT_ONCE], wall, None if near is None else near[a:a + POINTS_AT_ONCE],
+                               None if forced is None else forced[a:a + POINTS_AT_ONCE])
+                 for a in range(0, max(n, 1), POINTS_AT_ONCE)]
+        return tuple(np.concatenate(part) for part in zip(*parts))
+
+    def _on_segments(self, p: np.ndarray, segment: np.ndarray):
+        """to_route of points whose segment is known."""
+        chain, clock, rho = np.empty(len(p)), np.empty(len(p)), np.empty(len(p))
+        for i in np.unique(segment):
+            rows = np.flatnonzero(segment == i)
+            for a in range(0, len(rows), POINTS_AT_ONCE):
+                part = rows[a:a + POINTS_AT_ONCE]
+                seg = self.segments[i]
+                s, clock[part], rho[part], _ = seg.local(p[part])
+                chain[part] = s + seg.chainage_start
+        return chain, np.degrees(clock), rho, np.asarray(segment, int).copy()
+
+    def _located(self, points, wall: bool, near_chainage, forced):
+        chain, clock_all, rho_all, cost = self._candidates(points, wall)
+        n = chain.shape[1]
+        if near_chainage is not None:
             # A camera sees the wall within a few radii along the pipe: passes farther from its own chainage
             # than SIGHT_RADII are no candidates (unless nothing else is); of the rest the best fit wins.
-            gap = np.abs(chain - np.broadcast_to(np.asarray(near_chainage, float), (n,)))
+            gap = np.abs(chain - near_chainage)
             near = np.where(gap <= SIGHT_RADII * self.radius, cost, np.inf)
             best = np.argmin(np.where(np.isfinite(near).any(axis=0), near, cost), axis=0)
         else:
