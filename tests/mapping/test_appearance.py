@@ -165,6 +165,26 @@ def test_appearance_ply_round_trip(tmp_path):
     assert "binary_little_endian" in header and "property float x" in header and "property uchar intensity" in header
 
 
+def test_appearance_ply_written_in_parts_is_the_same_file(tmp_path):
+    """write_maps writes the map piece by piece (never the whole map twice in memory): the same bytes as one
+    write of all points, chainage and clock included, and plyfile reads it."""
+    from plyfile import PlyData
+
+    from pipemap.mapping import write_appearance_ply_parts
+
+    rng = np.random.default_rng(2)
+    P, I = rng.normal(size=(700, 3)), rng.uniform(0, 255, 700)
+    P[10] = np.nan
+    coords = (rng.uniform(0, 30, 700), rng.uniform(0, 360, 700))
+    write_appearance_ply(tmp_path / "whole.ply", P, I, coords)
+    cuts = [0, 1, 250, 251, 700]
+    parts = [(P[a:b], I[a:b], (coords[0][a:b], coords[1][a:b])) for a, b in zip(cuts, cuts[1:])]
+    assert write_appearance_ply_parts(tmp_path / "parts.ply", iter(parts), with_coords=True) == 699
+    assert (tmp_path / "parts.ply").read_bytes() == (tmp_path / "whole.ply").read_bytes()
+    v = PlyData.read(str(tmp_path / "parts.ply"))["vertex"]
+    np.testing.assert_allclose(np.asarray(v["chainage"]), np.delete(coords[0], 10).astype(np.float32), atol=0)
+
+
 def test_bad_inputs_raise(loop_case):
     c = loop_case
     with pytest.raises(PipemapError, match="3 keyframe indices but 2 poses"):

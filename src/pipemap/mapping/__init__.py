@@ -6,6 +6,7 @@ from pipemap.mapping.appearance import (
     build_appearance,
     read_appearance_ply,
     write_appearance_ply,
+    write_appearance_ply_parts,
     write_maps,
 )
 from pipemap.mapping.elbow_piece import ElbowPiece, piece_from_dict, with_elbows
@@ -15,4 +16,4 @@ from pipemap.mapping.wall import WallGrid, WallPiece, sample_wall, wall_grid
 
 __all__ = ["AppearanceMap", "ElbowPiece", "PieceMap", "WallGrid", "WallPiece", "build_appearance", "piece_from_dict",
            "pieces_from_result", "read_appearance_ply", "read_unrolled", "sample_wall", "wall_grid",
-           "write_appearance_ply", "write_maps", "write_unrolled", "with_elbows"]
+           "write_appearance_ply", "write_appearance_ply_parts", "write_maps", "write_unrolled", "with_elbows"]

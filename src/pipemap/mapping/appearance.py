@@ -18,8 +18,9 @@ own (seen through a tee's opening) counts only if the line of sight stays inside
 
 from __future__ import annotations
 
-import io
 import math
+import shutil
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +28,7 @@ from typing import Callable, Iterable, Iterator
 
 import cv2
 import numpy as np
-from plyfile import PlyData, PlyElement
+from plyfile import PlyData
 
 from pipemap.config import AppearanceSettings
 from pipemap.dataset import Dataset, Frame
@@ -44,7 +45,7 @@ from pipemap.mapping.wall import (
     wall_grid,
 )
 from pipemap.mapping.unrolled import write_unrolled
-from pipemap.output import atomic_write_bytes
+from pipemap.output import replacing
 from pipemap.inspection.route import piece_start_chainage, route_segment_of
 
 # Wall farther from the camera than this many radii / sin(min_theta) is not sampled. In a straight
@@ -307,28 +308,54 @@ def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out.ravel()[:n].astype(np.float64)
 
 
-def write_appearance_ply(path: str | Path, points: np.ndarray, intensity: np.ndarray, coords=None) -> None:
-    """appearance.ply: binary little-endian PLY, float32 x y z and uchar intensity, written atomically;
-    `coords` (chainage, clock_deg) add float32 properties `chainage` and `clock_deg` per point."""
+_PLY_COMMENT = ("pipemap appearance map: wall points (metres, world frame of trajectory.tum), mean grey level over "
+                "the keyframes")
+
+
+def _vertex_bytes(points: np.ndarray, intensity: np.ndarray, coords, fields) -> bytes:
     P = np.asarray(points, float).reshape(-1, 3)
     I = np.asarray(intensity, float).reshape(-1)
     if len(P) != len(I):
         raise ValueError(f"{len(P)} points but {len(I)} intensities")
     ok = np.all(np.isfinite(P), axis=1) & np.isfinite(I)
     P, I = P[ok], I[ok]
-    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")]
-    if coords is not None:
-        fields += [("chainage", "<f4"), ("clock_deg", "<f4")]
     vertex = np.empty(len(P), dtype=fields)
     vertex["x"], vertex["y"], vertex["z"] = P[:, 0], P[:, 1], P[:, 2]
     vertex["intensity"] = np.clip(np.rint(I), 0, 255).astype(np.uint8)
     if coords is not None:
         vertex["chainage"], vertex["clock_deg"] = np.asarray(coords[0])[ok], np.asarray(coords[1])[ok]
-    buf = io.BytesIO()
-    PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<",
-            comments=["pipemap appearance map: wall points (metres, world frame of trajectory.tum), "
-                      "mean grey level over the keyframes"]).write(buf)
-    atomic_write_bytes(Path(path), buf.getvalue())
+    return vertex.tobytes()
+
+
+def write_appearance_ply_parts(path: str | Path, parts: Iterable[tuple], with_coords: bool = False) -> int:
+    """appearance.ply from parts (points (n, 3), intensity (n,), coords or None), each turned into vertices and
+    written before the next is made, so that the whole map is never held twice; returns the vertex count.
+    Binary little-endian PLY, float32 x y z and uchar intensity; `with_coords`: every part's coords
+    (chainage, clock_deg) add float32 properties `chainage` and `clock_deg`. Written atomically; points or
+    grey levels that are not finite are left out."""
+    path = Path(path)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")]
+    if with_coords:
+        fields += [("chainage", "<f4"), ("clock_deg", "<f4")]
+    names = {"<f4": "float", "u1": "uchar"}
+    with tempfile.TemporaryFile(dir=path.parent) as body:
+        count = 0
+        for points, intensity, coords in parts:
+            data = _vertex_bytes(points, intensity, coords if with_coords else None, fields)
+            body.write(data)
+            count += len(data) // np.dtype(fields).itemsize
+        header = ["ply", "format binary_little_endian 1.0", f"comment {_PLY_COMMENT}", f"element vertex {count}"]
+        header += [f"property {names[kind]} {name}" for name, kind in fields] + ["end_header", ""]
+        body.seek(0)
+        with replacing(path) as tmp, open(tmp, "wb") as out:
+            out.write("\n".join(header).encode("ascii"))
+            shutil.copyfileobj(body, out, 1 << 22)
+    return count
+
+
+def write_appearance_ply(path: str | Path, points: np.ndarray, intensity: np.ndarray, coords=None) -> None:
+    """appearance.ply of one set of points (write_appearance_ply_parts)."""
+    write_appearance_ply_parts(path, [(points, intensity, coords)], with_coords=coords is not None)
 
 
 def read_appearance_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -344,6 +371,18 @@ def read_appearance_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise PipemapError(f"not an appearance PLY ({exc})", path) from None
 
 
+def _located_parts(amap: AppearanceMap, route) -> Iterator[tuple]:
+    """Each piece's seen points, grey levels and, on a route, their (chainage, clock) on its segment."""
+    for pm in amap.pieces:
+        seen = pm.seen
+        points = pm.grid.points()[seen]
+        coords = None
+        if route is not None:
+            chainage, clock, _, _ = route.to_route(points, wall=True, segment=route_segment_of(route, pm.piece))
+            coords = (chainage, clock)
+        yield points, pm.intensity[seen], coords
+
+
 def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_wc, pieces: Iterable[WallPiece],
                settings=None, progress: Callable[[int, int], None] | None = None,
                usable: np.ndarray | None = None, route=None) -> dict:
@@ -355,18 +394,12 @@ def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_w
     pieces = list(pieces)
     amap = build_appearance(dataset, keyframe_indices, poses_T_wc, pieces, s, progress, usable)
     t0 = time.perf_counter()
-    points, intensity = amap.points()
-    coords = None
-    if route is not None:
-        segment = np.concatenate([np.full(int(pm.seen.sum()), route_segment_of(route, pm.piece), int)
-                                  for pm in amap.pieces]) if amap.pieces else np.zeros(0, int)
-        chainage, clock, _, _ = route.to_route(points, wall=True, segment=segment)
-        coords = (chainage, clock)
-    write_appearance_ply(folder / "appearance.ply", points, intensity, coords)
+    count = write_appearance_ply_parts(folder / "appearance.ply", _located_parts(amap, route),
+                                       with_coords=route is not None)
     starts = None if route is None else {pm.piece.name: piece_start_chainage(route, pm.piece) for pm in amap.pieces}
     images = write_unrolled(folder / "unrolled", amap, chainage_of_start=starts)
     return {
-        "appearance_points": int(len(points)),
+        "appearance_points": count,
         "unrolled_images": [p.name for p in images],
         "keyframes": amap.keyframes,
         "colatitude_band_deg": [round(v, 2) for v in colatitude_band(s, dataset.camera)],
@@ -378,4 +411,5 @@ def write_maps(folder: str | Path, dataset: Dataset, keyframe_indices, poses_T_w
 
 
 __all__ = ["PieceMap", "AppearanceMap", "build_appearance", "colatitude_band", "bilinear", "write_appearance_ply",
+           "write_appearance_ply_parts",
            "read_appearance_ply", "write_maps", "write_unrolled"]
