@@ -49,6 +49,26 @@ def test_tee_centre_and_sections(tee_run):
     assert run["wall_pieces"] and all(p["unroll"] for p in run["wall_pieces"])
 
 
+def test_straight_vo_beside_tracking_gives_the_same_result(tee_run):
+    """The straight-section VO run in a second process while the front end tracks, fed each keyframe once its
+    class is final, gives exactly what it gives run after the tracking on the same keyframes."""
+    from pipemap.dataset import load_dataset
+    from pipemap.pipeline import straight_vo, track_beside_vo
+
+    data, _ = tee_run
+    dataset, settings = load_dataset(data), load_settings()
+    front, beside = track_beside_vo(dataset, settings)
+    assert beside is not None
+    vo, result, bends = straight_vo(front, dataset, settings)
+    assert [k.number for k in beside[0].keyframes] == [k.number for k in vo.keyframes]
+    assert [(s.kind, s.first, s.last) for s in beside[1].sections] == [(s.kind, s.first, s.last)
+                                                                       for s in result.sections]
+    assert [s.kind for s in result.sections] == ["straight", "junction", "straight"]
+    np.testing.assert_array_equal(beside[1].poses, result.poses)
+    np.testing.assert_array_equal(beside[1].points, result.points)
+    np.testing.assert_array_equal(beside[2], bends)
+
+
 def test_missed_junction_completes_and_reports(tee_run, tmp_path):
     data, _ = tee_run
     # A threshold no frame reaches and no bend detection from the keyframes' rotations: no junction section at

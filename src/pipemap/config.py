@@ -200,6 +200,9 @@ class StraightVOSettings(_Section):
     end_wall_ahead_m: float = Field(0.05, ge=0, description="... with the cylinder term on the wall up to this far "
                                     "ahead of the section's last keyframe only (the bend's wall is no cylinder; "
                                     "elbow-cross B seed 2 at 0.2: Table I 0.432 %)")
+    beside_tracking: bool = Field(True, description="run in a second process while the front end tracks, fed "
+                                  "each keyframe once its class is final (the same result; not in a batch's "
+                                  "runs, whose workers keep every core busy already)")
     min_window_points: int = Field(30, gt=0, description="fewer points: no window solve")
     min_window_keyframes: int = Field(3, gt=1)
     max_colatitude_deg: float | None = Field(70.0, gt=0, le=180, description="window observations beyond this angle "

@@ -14,6 +14,7 @@ Writes trajectory.tum, junctions.yaml, sparse.ply, appearance.ply, unrolled/, fr
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
 import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -28,7 +29,6 @@ from threadpoolctl import threadpool_limits
 
 from pipemap.backend.evidence import DroppedPass, fit_elbow_bends, type_turning_passes, weigh_junction_evidence
 from pipemap.backend.join import join_sections
-from pipemap.frontend.turning import turning_keyframes
 from pipemap.backend.network_map import (
     MappedJunction,
     MappedSection,
@@ -41,6 +41,7 @@ from pipemap.backend.pipe_map import PipeMap
 from pipemap.backend.revisit import RevisitReport, close_network_loops
 from pipemap.backend.sparse_ply import write_sparse_ply
 from pipemap.backend.section_vo import StraightResult, StraightVO
+from pipemap.backend.straight_beside import StraightVOBeside
 from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
@@ -48,6 +49,7 @@ from pipemap.footage import FootageLog
 from pipemap.frontend import FeatureTracker
 from pipemap.frontend.angular import classification_for, scaled_settings
 from pipemap.frontend.classification import SequenceClass, SequenceClassifier
+from pipemap.frontend.section_labels import KeyframeClasses
 from pipemap.frontend.tracks import Keyframe
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.frontend.usable import UsableMask, usable_mask
@@ -73,6 +75,7 @@ class FrontEndResult:
     footage: FootageLog = field(default_factory=FootageLog)  # repeated, dropped and damaged frames
     mask: UsableMask | None = None  # the pixels that move with the wall
     stats: FrameStats | None = None  # lighting and texture of the frames read
+    bends: np.ndarray | None = None  # keyframes classed junction for a bend's turn alone, when classed while tracking
 
 
 @dataclass
@@ -136,12 +139,14 @@ def _done(value) -> Future:
 
 
 def track_and_classify(dataset: Dataset, settings: Settings,
-                       progress: Callable[[int, int, int], None] | None = None) -> FrontEndResult:
+                       progress: Callable[[int, int, int], None] | None = None,
+                       classed: "Callable[[Keyframe, bool], None] | None" = None) -> FrontEndResult:
     """Stage 1: every frame classified straight / junction (III-B) and tracked (III-A).
 
     Reading, classifying and feature extraction of the next frame run on a second thread while
     the current one is matched (OpenCV and numpy release the GIL there); both follow frame order,
-    so the result is the same as one thread's."""
+    so the result is the same as one thread's. `classed(keyframe, junction)` gets every keyframe in
+    order as soon as its section class is final (section_labels.py), the last ones at the end."""
     mask = usable_mask(dataset, settings)
     tracker = FeatureTracker(dataset.camera, settings.frontend, settings.seed, mask.usable)
     classifier = SequenceClassifier(dataset.camera, classification_for(dataset.camera, settings.classification,
@@ -155,6 +160,11 @@ def track_and_classify(dataset: Dataset, settings: Settings,
 
     log = FootageLog()
     stats = FrameStats.for_settings(settings)
+    classes = None if classed is None else keyframe_classes(settings)
+
+    def hand_on(final: list[tuple[int, bool]]) -> None:
+        for k, junction in final:
+            classed(keyframes[k], junction)
     # a repeated frame (a stalled link) shows nothing new: tracked, it would be a stop of the robot
     frames = (f for f in dataset.frames(log=log) if not f.repeated)
 
@@ -184,24 +194,24 @@ def track_and_classify(dataset: Dataset, settings: Settings,
                 break
             ahead.append(submit(prepare))
             frame, features = item
-            keyframes.extend(tracker.process(frame, features))
+            new = tracker.process(frame, features)
+            keyframes.extend(new)
+            if new and classes is not None:
+                hand_on(classes.update(keyframes, classifier.indices, classifier.raw))
             done += 1
             if progress is not None:
                 progress(done, total, len(keyframes))
     keyframes.extend(tracker.finish())
+    if classes is not None:
+        hand_on(classes.update(keyframes, classifier.indices, classifier.raw, done=True))
     if done == 0:
         raise PipemapError("no images could be read", dataset.root)
     wall = time.perf_counter() - start
     # frontend: the stage's wall time; read/classification/extract ran beside it on the second thread.
     seconds = {"frontend": wall, "read": timing["read"], "classification": timing["classification"],
                "extract": timing["extract"]}
-    return FrontEndResult(keyframes, classifier.result(), done, seconds, log, mask, stats)
-
-
-def keyframe_labels(keyframes: list[Keyframe], classes: SequenceClass) -> np.ndarray:
-    """True for keyframes whose image was classified junction (after the temporal filter)."""
-    lookup = dict(zip(np.asarray(classes.indices).tolist(), np.asarray(classes.junction).tolist()))
-    return np.array([bool(lookup.get(kf.index, False)) for kf in keyframes], bool)
+    return FrontEndResult(keyframes, classifier.result(), done, seconds, log, mask, stats,
+                          None if classes is None else classes.bends)
 
 
 def section_bend(settings: Settings) -> tuple[float, float, float, float] | None:
@@ -231,15 +241,17 @@ def straight_vo(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
     """Stage 2's metric VO of the straight sections (III-C) chained through the junctions: the VO, its result and
     which keyframes are in a bend the images did not classify."""
     vo = StraightVO(dataset.camera, dataset.radius_m, settings)
-    junction = keyframe_labels(front.keyframes, front.classes)
+    classes = keyframe_classes(settings)
+    c = front.classes
+    for k, junction in classes.update(front.keyframes, c.indices.tolist(), c.raw_junction.tolist(), done=True):
+        vo.add(front.keyframes[k], junction=junction)
+    return vo, vo.finish(), classes.bends
+
+
+def keyframe_classes(settings: Settings) -> KeyframeClasses:
+    """The keyframes' section classes: the images' (filtered) and the turns of bends they missed."""
     c = settings.classification
-    bends = np.zeros(len(junction), bool)
-    if c.turn_deg is not None:
-        bends = turning_keyframes(front.keyframes, c.turn_window_keyframes, c.turn_deg, junction) & ~junction
-        junction |= bends
-    for kf, j in zip(front.keyframes, junction):
-        vo.add(kf, junction=bool(j))
-    return vo, vo.finish(), bends
+    return KeyframeClasses(c.min_cluster_keyframes, c.turn_deg, c.turn_window_keyframes)
 
 
 def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings,
@@ -358,6 +370,31 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
     write_run_json(folder, run)
 
 
+def track_beside_vo(dataset: Dataset, settings: Settings, progress: Callable[[int, int, int], None] | None = None
+                    ) -> tuple[FrontEndResult, tuple | None]:
+    """track_and_classify, with the straight-section VO fed its keyframes in a second process as they come
+    (straight_beside.py; `straight_vo.beside_tracking`, and not where frames are prepared in turn or in a
+    daemonic process): the front end's result and straight_vo's (None where the VO did not run beside)."""
+    # a daemonic process (a Dask worker's) may start none of its own
+    if not (settings.straight_vo.beside_tracking and _PREPARE_AHEAD.get()
+            and not multiprocessing.current_process().daemon):
+        front = track_and_classify(dataset, settings, progress)
+        require_mappable(front.stats, len(front.keyframes), len(dataset), len(front.footage.repeated), settings,
+                         dataset.root)
+        return front, None
+    beside = StraightVOBeside(dataset.camera, dataset.radius_m, settings)
+    try:
+        front = track_and_classify(dataset, settings, progress, beside.add)
+        require_mappable(front.stats, len(front.keyframes), len(dataset), len(front.footage.repeated), settings,
+                         dataset.root)
+        t = time.perf_counter()
+        vo, result = beside.finish(front.keyframes)
+        front.seconds["straight_wait"] = time.perf_counter() - t
+    finally:
+        beside.close()
+    return front, (vo, result, front.bends)
+
+
 def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
                  progress: Callable[[int, int, int], None] | None = None,
                  on_stage: Callable[[str], None] | None = None) -> PipelineResult:
@@ -376,11 +413,9 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
     # took 17 ms of CPU a frame with two BLAS threads, 6.5 ms with one). The results are the same.
     with threadpool_limits(1, user_api="blas"), result_folder(Path(out_dir)) as tmp:
         stage("tracking")
-        front = track_and_classify(dataset, settings, progress)
-        require_mappable(front.stats, len(front.keyframes), len(dataset), len(front.footage.repeated), settings,
-                         dataset.root)
+        front, straight = track_beside_vo(dataset, settings, progress)
         stage("mapping")
-        net = map_network(front, dataset, settings)
+        net = map_network(front, dataset, settings, straight)
         maps = None
         if settings.appearance.enabled and net.wall_pieces:
             stage("appearance")
@@ -411,5 +446,5 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
                           seconds, front.footage, front.mask, net.quality)
 
 
-__all__ = ["FrontEndResult", "NetworkResult", "PipelineResult", "track_and_classify", "straight_vo", "map_network",
-           "keyframe_labels", "run_pipeline", "write_results", "write_junctions"]
+__all__ = ["FrontEndResult", "NetworkResult", "PipelineResult", "track_and_classify", "track_beside_vo", "straight_vo",
+           "map_network", "run_pipeline", "write_results", "write_junctions"]

@@ -44,11 +44,17 @@ def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: flo
     `threshold_deg`, among the windows that come no nearer than a window to a keyframe the images already
     classified as a junction (`classified`, (N,) bool): a tee or tight elbow turns the view as it should,
     and widening its section by its turn's tail would swallow the straight pipe between junctions."""
-    n = len(keyframes)
+    z, chain = viewing_directions(keyframes)
+    return turning_from_directions(z, chain, window, threshold_deg, classified)
+
+
+def turning_from_directions(z: np.ndarray, chain: np.ndarray, window: int, threshold_deg: float,
+                            classified: np.ndarray | None = None) -> np.ndarray:
+    """turning_keyframes of the keyframes' viewing directions and chain numbers (viewing_directions)."""
+    n = len(z)
     out = np.zeros(n, bool)
     if n == 0 or window < 2:
         return out
-    z, chain = viewing_directions(keyframes)
     half = window // 2
     k = np.arange(n)
     a, b = np.clip(k - half, 0, n - 1), np.clip(k + half, 0, n - 1)
@@ -65,4 +71,4 @@ def turning_keyframes(keyframes: list[Keyframe], window: int, threshold_deg: flo
     return out
 
 
-__all__ = ["viewing_directions", "turning_keyframes"]
+__all__ = ["viewing_directions", "turning_keyframes", "turning_from_directions"]
