@@ -74,6 +74,26 @@ def test_wall_field_reads_a_dent(depth, length, width, clock):
     assert np.nanmax(np.abs(round_wall.value)) < 0.005
 
 
+def test_wall_field_fitted_a_part_at_a_time_is_the_same(monkeypatch):
+    """Points and nodes are fitted ROWS_AT_ONCE at a time (a long piece's nodes times 80 neighbours took
+    gigabytes at once): the same field as all at once."""
+    import pipemap.mapping.wall_field as module
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    h, phi = rng.uniform(0, 0.6, n), rng.uniform(0, 2 * np.pi, n)
+    d = rng.normal(0, 0.001, n) + np.where(rng.random(n) < 0.01, 0.02, 0.0)
+    s = DeformationSettings()
+    kw = dict(grid_m=s.dent_grid_m, neighbours=tuple(s.dent_neighbours), gamma=s.dent_ici_gamma,
+              outlier_mads=s.dent_outlier_mads, reach_m=s.dent_reach_m)
+    nodes = np.arange(0.1, 0.5, 0.01)
+    whole = wall_field(h, phi, d, R, nodes, **kw)
+    monkeypatch.setattr(module, "ROWS_AT_ONCE", 97)
+    parts = wall_field(h, phi, d, R, nodes, **kw)
+    assert parts.sigma == whole.sigma and parts.points == whole.points
+    np.testing.assert_array_equal(parts.value, whole.value)
+
+
 def test_profile_of_an_exact_ellipse():
     rng = np.random.default_rng(0)
     phi = rng.uniform(0, 2 * np.pi, 400)

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 LOO_NEIGHBOURS = 30
+ROWS_AT_ONCE = 4096  # points or nodes whose neighbourhoods are fitted together
 MAX_LEAN = 0.3  # the neighbours' weighted centroid may lie this far (in bandwidths) from the node
 
 
@@ -81,27 +82,19 @@ class _Wall:
         return dist, idx, _design(dh, ds)
 
 
-def wall_field(h: np.ndarray, phi: np.ndarray, d: np.ndarray, radius: float, h_nodes: np.ndarray, *,
-               grid_m: float, neighbours: tuple[int, ...], gamma: float, outlier_mads: float,
-               reach_m: float) -> WallField | None:
-    """The deviation field at h_nodes x a ring of nodes every grid_m around (None: too few points)."""
-    h, phi, d = (np.asarray(a, float) for a in (h, phi, d))
-    if len(h) < 2 * max(neighbours):
-        return None
-    wall = _Wall(h, phi, radius)
-    dist, idx, X = wall.neighbours(wall.h, wall.s, LOO_NEIGHBOURS + 1)
-    l = _equivalent_kernel(X[:, 1:], _tricube(dist[:, 1:], LOO_NEIGHBOURS))  # without the point itself
-    res = d - np.einsum("nk,nk->n", l, d[idx[:, 1:]])
-    res = np.where(np.isfinite(res), res, np.inf)
-    sigma = 1.4826 * float(np.median(np.abs(res))) + 1e-9
-    keep = np.abs(res) <= outlier_mads * sigma
-    if keep.sum() < 2 * max(neighbours):
-        return None
-    wall = _Wall(h[keep], phi[keep], radius)
-    d = d[keep]
-    n_around = max(8, int(round(wall.C / grid_m)))
-    H, S = np.meshgrid(np.asarray(h_nodes, float) - wall.h0, np.arange(n_around) * wall.C / n_around, indexing="ij")
-    H, S = H.ravel(), S.ravel()
+def _loo_residuals(wall: _Wall, d: np.ndarray) -> np.ndarray:
+    """Each point's deviation less its leave-one-out local quadratic prediction."""
+    res = np.empty(len(d))
+    for rows in _chunks(len(d)):
+        dist, idx, X = wall.neighbours(wall.h[rows], wall.s[rows], LOO_NEIGHBOURS + 1)
+        l = _equivalent_kernel(X[:, 1:], _tricube(dist[:, 1:], LOO_NEIGHBOURS))  # without the point itself
+        res[rows] = d[rows] - np.einsum("nk,nk->n", l, d[idx[:, 1:]])
+    return res
+
+
+def _node_values(wall: _Wall, d: np.ndarray, H: np.ndarray, S: np.ndarray, neighbours: tuple[int, ...],
+                 gamma: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """ICI estimates at nodes (H, S) and each node's nearest point's distance."""
     dist, idx, X = wall.neighbours(H, S, max(neighbours))
     value = lo = hi = None
     alive = np.ones(len(H), bool)
@@ -120,7 +113,37 @@ def wall_field(h: np.ndarray, phi: np.ndarray, d: np.ndarray, radius: float, h_n
         lo, hi = np.maximum(lo, v - half), np.minimum(hi, v + half)
         alive &= (lo <= hi) & np.isfinite(v)
         value = np.where(alive, v, value)
-    value = np.where(dist[:, 0] <= reach_m, value, np.nan)
+    return value, dist[:, 0]
+
+
+def _chunks(n: int):
+    """Row slices of at most ROWS_AT_ONCE: every row is independent, and a long piece's nodes times 80
+    neighbours times the quadratic's 6 terms took gigabytes at once."""
+    return (slice(a, a + ROWS_AT_ONCE) for a in range(0, n, ROWS_AT_ONCE))
+
+
+def wall_field(h: np.ndarray, phi: np.ndarray, d: np.ndarray, radius: float, h_nodes: np.ndarray, *,
+               grid_m: float, neighbours: tuple[int, ...], gamma: float, outlier_mads: float,
+               reach_m: float) -> WallField | None:
+    """The deviation field at h_nodes x a ring of nodes every grid_m around (None: too few points)."""
+    h, phi, d = (np.asarray(a, float) for a in (h, phi, d))
+    if len(h) < 2 * max(neighbours):
+        return None
+    res = _loo_residuals(_Wall(h, phi, radius), d)
+    res = np.where(np.isfinite(res), res, np.inf)
+    sigma = 1.4826 * float(np.median(np.abs(res))) + 1e-9
+    keep = np.abs(res) <= outlier_mads * sigma
+    if keep.sum() < 2 * max(neighbours):
+        return None
+    wall = _Wall(h[keep], phi[keep], radius)
+    d = d[keep]
+    n_around = max(8, int(round(wall.C / grid_m)))
+    H, S = np.meshgrid(np.asarray(h_nodes, float) - wall.h0, np.arange(n_around) * wall.C / n_around, indexing="ij")
+    H, S = H.ravel(), S.ravel()
+    value, nearest = np.empty(len(H)), np.empty(len(H))
+    for rows in _chunks(len(H)):
+        value[rows], nearest[rows] = _node_values(wall, d, H[rows], S[rows], neighbours, gamma, sigma)
+    value = np.where(nearest <= reach_m, value, np.nan)
     return WallField(H + wall.h0, S / radius, value, sigma, int(keep.sum()))
 
 
