@@ -57,7 +57,7 @@ from pipemap.geometry.bend import OFFSET_SIGMA_M
 from pipemap.inspection.network_route import network_route
 from pipemap.inspection.route import Route, frame_chainage, write_route
 from pipemap.mapping import WallPiece, piece_from_dict, with_elbows, write_maps
-from pipemap.mapping.deformation_stage import measure_deformation, write_deformation
+from pipemap.mapping.deformation_stage import measure_deformation, sparse_deformation, write_deformation
 from pipemap.mapping.wall_depth import dense_profiles
 from pipemap.output import atomic_write_text, result_folder
 from pipemap.quality import FrameStats, RunVerdict, network_verdict, require_mappable
@@ -395,6 +395,39 @@ def track_beside_vo(dataset: Dataset, settings: Settings, progress: Callable[[in
     return front, (vo, result, front.bends)
 
 
+def write_wall_maps(folder: Path, dataset: Dataset, front: FrontEndResult, net: NetworkResult, settings: Settings,
+                    stage: Callable[[str], None]) -> tuple[dict | None, dict | None]:
+    """The appearance maps and the deformation stage into `folder`: (write_maps' record, the deformation
+    record), None for what is off. The sparse deformation reads only the map, so it runs on a second thread
+    while the appearance map samples the keyframes (not where frames are prepared in turn); the same result."""
+    maps = deformation = None
+    if not net.wall_pieces:
+        return maps, deformation
+    straight = [WallPiece.from_dict(d) for d in net.wall_pieces if d.get("kind", "line") == "line"]
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        submit = pool.submit if _PREPARE_AHEAD.get() else (lambda work: _done(work()))
+        sparse = submit(lambda: sparse_deformation(net.map, straight, dataset.radius_m, settings)) \
+            if settings.deformation.enabled else None
+        if settings.appearance.enabled:
+            stage("appearance")
+            maps = write_maps(folder, dataset, net.straight.indices, net.map.poses,
+                              [piece_from_dict(d) for d in net.wall_pieces], settings,
+                              usable=None if front.mask is None else front.mask.usable, route=net.route)
+        if sparse is None:
+            return maps, deformation
+        stage("deformation")
+        indices = net.straight.indices
+
+        def dense(piece):
+            return dense_profiles(piece, dataset.camera, net.map.poses, lambda k: dataset.read(int(indices[k])).image,
+                                  dataset.radius_m, settings.deformation)
+
+        rows, deformation = measure_deformation(net.map, straight, dataset.radius_m, settings, dense, net.route,
+                                                sparse.result())
+    write_deformation(folder, rows, dataset.radius_m)
+    return maps, deformation
+
+
 def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
                  progress: Callable[[int, int, int], None] | None = None,
                  on_stage: Callable[[str], None] | None = None) -> PipelineResult:
@@ -416,25 +449,7 @@ def run_pipeline(dataset_path, out_dir, settings: Settings | None = None,
         front, straight = track_beside_vo(dataset, settings, progress)
         stage("mapping")
         net = map_network(front, dataset, settings, straight)
-        maps = None
-        if settings.appearance.enabled and net.wall_pieces:
-            stage("appearance")
-            maps = write_maps(tmp, dataset, net.straight.indices, net.map.poses,
-                              [piece_from_dict(d) for d in net.wall_pieces], settings,
-                              usable=None if front.mask is None else front.mask.usable, route=net.route)
-        deformation = None
-        if settings.deformation.enabled and net.wall_pieces:
-            stage("deformation")
-            indices = net.straight.indices
-
-            def dense(piece):
-                return dense_profiles(piece, dataset.camera, net.map.poses,
-                                      lambda k: dataset.read(int(indices[k])).image, dataset.radius_m,
-                                      settings.deformation)
-
-            straight = [WallPiece.from_dict(d) for d in net.wall_pieces if d.get("kind", "line") == "line"]
-            rows, deformation = measure_deformation(net.map, straight, dataset.radius_m, settings, dense, net.route)
-            write_deformation(tmp, rows, dataset.radius_m)
+        maps, deformation = write_wall_maps(tmp, dataset, front, net, settings, stage)
         stage("writing")
         seconds = dict(front.seconds)
         seconds.update(net.seconds)

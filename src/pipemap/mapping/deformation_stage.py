@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import io
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -19,20 +19,39 @@ from pipemap.mapping.wall import WallPiece
 from pipemap.output import atomic_write_bytes, atomic_write_text
 
 
-def measure_deformation(pipe_map, pieces: list[WallPiece], radius: float, settings: Settings,
-                        dense=None, route=None) -> tuple[list[SliceProfile], dict]:
-    """The slices of the unrolled (straight) pieces, sparse then dense, and figures for run.json.
-    `dense(piece) -> list[SliceProfile]` measures one piece densely (None: sparse only); with `route`
-    (inspection.Route) every slice gets its chainage."""
+@dataclass(frozen=True)
+class SparseDeformation:
+    rows: list[SliceProfile]  # the straight pieces' slices from the sparse points
+    free_points: int  # points triangulated again without the cylinder term, and valid
+    points: int  # of so many tracks
+    seconds: float
+
+
+def sparse_deformation(pipe_map, pieces: list[WallPiece], radius: float, settings: Settings) -> SparseDeformation:
+    """The slices of the unrolled (straight) pieces from the sparse points, triangulated again without the
+    cylinder term (it reads pipe_map only, so it may run beside the appearance map)."""
     s = settings.deformation
     t0 = time.perf_counter()
     points, valid = free_points(pipe_map.keyframes, pipe_map.poses, pipe_map.point_tracks,
                                 min_parallax_deg=s.min_parallax_deg, max_ray_error_deg=s.max_ray_error_deg)
     pts = points[valid]
     rows: list[SliceProfile] = []
-    straight = [p for p in pieces if p.unroll]
-    for piece in straight:
+    for piece in (p for p in pieces if p.unroll):
         rows += sparse_profiles(piece, pts, radius, s)
+    return SparseDeformation(rows, int(valid.sum()), int(len(valid)), time.perf_counter() - t0)
+
+
+def measure_deformation(pipe_map, pieces: list[WallPiece], radius: float, settings: Settings,
+                        dense=None, route=None, sparse: SparseDeformation | None = None
+                        ) -> tuple[list[SliceProfile], dict]:
+    """The slices of the unrolled (straight) pieces, sparse then dense, and figures for run.json.
+    `dense(piece) -> list[SliceProfile]` measures one piece densely (None: sparse only); with `route`
+    (inspection.Route) every slice gets its chainage; `sparse`: sparse_deformation's result, when it ran
+    already."""
+    s = settings.deformation
+    sparse = sparse or sparse_deformation(pipe_map, pieces, radius, settings)
+    rows = list(sparse.rows)
+    straight = [p for p in pieces if p.unroll]
     t1 = time.perf_counter()
     if dense is not None and s.dense:
         for piece in straight:
@@ -41,8 +60,8 @@ def measure_deformation(pipe_map, pieces: list[WallPiece], radius: float, settin
         start = {p.name: piece_start_chainage(route, p) for p in straight}
         rows = [replace(r, chainage_m=round(start[r.piece] + r.h_m, 4)) for r in rows]
     record = summary(rows)
-    record.update(free_points=int(valid.sum()), points=int(len(valid)),
-                  seconds={"sparse": round(t1 - t0, 3), "dense": round(time.perf_counter() - t1, 3)})
+    record.update(free_points=sparse.free_points, points=sparse.points,
+                  seconds={"sparse": round(sparse.seconds, 3), "dense": round(time.perf_counter() - t1, 3)})
     return rows, record
 
 
