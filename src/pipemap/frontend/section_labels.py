@@ -53,8 +53,8 @@ class KeyframeClasses:
         """Keyframes classed junction only for the turn of a bend the images missed (final ones)."""
         return self._bends[:self._sent].copy()
 
-    def _filter(self, indices: list[int], raw: list[bool], done: bool) -> None:
-        n = len(raw)
+    def _filter(self, indices: list[int], raw: list[bool], n: int, done: bool) -> None:
+        """Final filtered classes of the frames before raw[n] that have them (only the open part is read)."""
         part = np.asarray(raw[self._anchor:n], bool)
         if not len(part):
             return
@@ -81,8 +81,7 @@ class KeyframeClasses:
                done: bool = False) -> list[tuple[int, bool]]:
         """`indices`, `raw`: the frame indices and raw image classes so far (raw may be the shorter: it is
         read first and its length counts)."""
-        n_raw = len(raw)
-        self._filter(indices, raw[:n_raw], done)
+        self._filter(indices, raw, len(raw), done)
         self._directions(keyframes)
         while len(self._junction) < len(keyframes):
             j = self._frame_class.get(keyframes[len(self._junction)].index)
@@ -90,21 +89,22 @@ class KeyframeClasses:
                 break
             self._junction.append(bool(j))
         known = len(self._junction)
-        if done:
-            ready = known
-        else:
-            half = self.turn_window // 2
-            ready = max(self._sent, min(known, len(keyframes)) - 2 * half - self.turn_window - 2)
+        half = self.turn_window // 2
+        reach = 2 * half + self.turn_window + 2  # keyframes a turn class depends on, either side
+        ready = known if done else max(self._sent, min(known, len(keyframes)) - reach)
         if ready <= self._sent:
             return []
-        junction = np.asarray(self._junction, bool)
+        # only the keyframes a new class depends on: the whole run each time would grow with its square
+        lo = max(0, self._sent - reach)
+        junction = np.asarray(self._junction[lo:known], bool)
         if self.turn_deg is not None:
-            bends = turning_from_directions(np.asarray(self._z[:known]), np.asarray(self._chain[:known]),
+            bends = turning_from_directions(np.asarray(self._z[lo:known]), np.asarray(self._chain[lo:known]),
                                             self.turn_window, self.turn_deg, junction) & ~junction
         else:
-            bends = np.zeros(known, bool)
-        self._bends = np.concatenate([self._bends[:self._sent], bends[self._sent:ready]])
-        out = [(k, bool(junction[k] or bends[k])) for k in range(self._sent, ready)]
+            bends = np.zeros(known - lo, bool)
+        new = slice(self._sent - lo, ready - lo)
+        self._bends = np.concatenate([self._bends[:self._sent], bends[new]])
+        out = list(zip(range(self._sent, ready), (junction[new] | bends[new]).tolist()))
         self._sent = ready
         return out
 
