@@ -69,6 +69,27 @@ def test_straight_vo_beside_tracking_gives_the_same_result(tee_run):
     np.testing.assert_array_equal(beside[2], bends)
 
 
+def test_a_vo_process_that_dies_leaves_the_vo_to_the_run(tee_run, monkeypatch):
+    """Killed mid-run (out of memory, a user's kill), the VO's process is given up and the run solves the
+    straight sections itself after the tracking."""
+    from pipemap.backend.straight_beside import StraightVOBeside
+    from pipemap.dataset import load_dataset
+    from pipemap.pipeline import track_beside_vo
+
+    add = StraightVOBeside.add
+
+    def add_then_die(self, kf, junction=False):
+        if kf.number == 10:
+            self._process.kill()
+            self._process.join()
+        add(self, kf, junction)
+
+    monkeypatch.setattr(StraightVOBeside, "add", add_then_die)
+    data, _ = tee_run
+    front, straight = track_beside_vo(load_dataset(data), load_settings())
+    assert straight is None and len(front.keyframes) > 20 and "straight_wait" not in front.seconds
+
+
 def test_missed_junction_completes_and_reports(tee_run, tmp_path):
     data, _ = tee_run
     # A threshold no frame reaches and no bend detection from the keyframes' rotations: no junction section at

@@ -374,25 +374,31 @@ def track_beside_vo(dataset: Dataset, settings: Settings, progress: Callable[[in
                     ) -> tuple[FrontEndResult, tuple | None]:
     """track_and_classify, with the straight-section VO fed its keyframes in a second process as they come
     (straight_beside.py; `straight_vo.beside_tracking`, and not where frames are prepared in turn or in a
-    daemonic process): the front end's result and straight_vo's (None where the VO did not run beside)."""
+    daemonic process): the front end's result and straight_vo's (None where the VO did not run beside: it
+    runs after the tracking, as where no process can be started or the process died)."""
+    beside = None
     # a daemonic process (a Dask worker's) may start none of its own
-    if not (settings.straight_vo.beside_tracking and _PREPARE_AHEAD.get()
-            and not multiprocessing.current_process().daemon):
-        front = track_and_classify(dataset, settings, progress)
-        require_mappable(front.stats, len(front.keyframes), len(dataset), len(front.footage.repeated), settings,
-                         dataset.root)
-        return front, None
-    beside = StraightVOBeside(dataset.camera, dataset.radius_m, settings)
+    if settings.straight_vo.beside_tracking and _PREPARE_AHEAD.get() and not multiprocessing.current_process().daemon:
+        with contextlib.suppress(OSError):  # no semaphores, a process limit
+            beside = StraightVOBeside(dataset.camera, dataset.radius_m, settings)
     try:
-        front = track_and_classify(dataset, settings, progress, beside.add)
+        front = track_and_classify(dataset, settings, progress, None if beside is None else beside.add)
         require_mappable(front.stats, len(front.keyframes), len(dataset), len(front.footage.repeated), settings,
                          dataset.root)
+        if beside is None:
+            return front, None
         t = time.perf_counter()
-        vo, result = beside.finish(front.keyframes)
+        try:
+            vo, result = beside.finish(front.keyframes)
+        except PipemapError:
+            raise
+        except Exception:  # noqa: BLE001 - the process died (killed, out of memory): the VO runs here instead
+            return front, None
         front.seconds["straight_wait"] = time.perf_counter() - t
+        return front, (vo, result, front.bends)
     finally:
-        beside.close()
-    return front, (vo, result, front.bends)
+        if beside is not None:
+            beside.close()
 
 
 def write_wall_maps(folder: Path, dataset: Dataset, front: FrontEndResult, net: NetworkResult, settings: Settings,

@@ -76,8 +76,9 @@ class StraightVOBeside:
         if self._process.is_alive():
             self._process.terminate()
         self._process.join()
-        self._inbox.close()
-        self._outbox.close()
+        for q in (self._inbox, self._outbox):
+            q.cancel_join_thread()  # keyframes a dead process never read must not hold up the run's exit
+            q.close()
 
 
 __all__ = ["StraightVOBeside"]
