@@ -38,20 +38,19 @@ class KeyframeClasses:
 
     def __init__(self, min_cluster: int, turn_deg: float | None, turn_window: int):
         self.min_cluster, self.turn_deg, self.turn_window = min_cluster, turn_deg, turn_window
-        self._filtered: list[bool] = []  # final filtered image classes, frame after frame
         self._anchor = 0  # frames before this have their final filtered class
         self._frame_class: dict[int, bool] = {}  # frame index -> final filtered class
         self._junction: list[bool] = []  # image class of keyframes 0.. (final ones)
         self._z: list[np.ndarray] = []  # viewing directions, chained as turning.viewing_directions chains them
         self._chain: list[int] = []
         self._R = np.eye(3)
-        self._bends = np.zeros(0, bool)
+        self._bends: list[bool] = []  # of the keyframes handed out
         self._sent = 0
 
     @property
     def bends(self) -> np.ndarray:
         """Keyframes classed junction only for the turn of a bend the images missed (final ones)."""
-        return self._bends[:self._sent].copy()
+        return np.array(self._bends, bool)
 
     def _filter(self, indices: list[int], raw: list[bool], n: int, done: bool) -> None:
         """Final filtered classes of the frames before raw[n] that have them (only the open part is read)."""
@@ -103,7 +102,7 @@ class KeyframeClasses:
         else:
             bends = np.zeros(known - lo, bool)
         new = slice(self._sent - lo, ready - lo)
-        self._bends = np.concatenate([self._bends[:self._sent], bends[new]])
+        self._bends += bends[new].tolist()
         out = list(zip(range(self._sent, ready), (junction[new] | bends[new]).tolist()))
         self._sent = ready
         return out
