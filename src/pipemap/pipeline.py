@@ -140,7 +140,7 @@ def _done(value) -> Future:
 
 def track_and_classify(dataset: Dataset, settings: Settings,
                        progress: Callable[[int, int, int], None] | None = None,
-                       classed: "Callable[[Keyframe, bool], None] | None" = None) -> FrontEndResult:
+                       classed: Callable[[Keyframe, bool], None] | None = None) -> FrontEndResult:
     """Stage 1: every frame classified straight / junction (III-B) and tracked (III-A).
 
     Reading, classifying and feature extraction of the next frame run on a second thread while
