@@ -1,0 +1,236 @@
+"""Where a simulated run's error comes from: the back end on the tracked observations, on exact ones, and on exact
+ones plus one part of the tracking's errors.
+
+    python benchmarks/bench_exact_observations.py DATASET [DATASET ...] [--parts all exact along across top bottom]
+
+For each simulated dataset folder it runs the network pipeline's front end once, puts every track's point where the
+ray of its first observation from the TRUE pose meets the true wall (the union of the network's pipes, openings
+left open; ground_truth/network.yaml), and projects that point into every keyframe of the track with the true poses.
+Tracks whose first ray meets no wall (an end cap, a junction's odd corner) keep their tracked observations. The
+network back end (`map_network`, as `pipemap run` runs it) then runs on each part:
+- all: the tracked observations; exact: the exact projections;
+- along / across: exact plus the tracking's error along / across each track's image motion since its previous
+  observation; top / bottom: exact plus the error of the observations in the upper / lower half of the image;
+  early / late: exact plus the error of each track's second and third / fourth and later observations.
+A forward-and-reverse run reports the distance driven forward (start to the farthest keyframe) and back against the
+truth; any other the Sim(3) scale of the keyframe positions, the ATE after it and every distance between junction
+centres. It also prints the tracking's mean error along the motion by place in the track and by the direction of the
+observation from the image centre (45 degree sectors, image y pointing down), relative to each track's first
+observation. No scale alignment anywhere. Writes benchmarks/results/exact_observations.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from pipemap.config import Settings
+from pipemap.dataset import load_dataset
+from pipemap.network import load_network
+from pipemap.pipeline import map_network, track_and_classify
+from pipemap.trajectory import read_tum
+
+PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late")
+
+
+def wall_point(pieces, radius: float, origin: np.ndarray, ray: np.ndarray) -> np.ndarray | None:
+    """Where `ray` from `origin` first meets the wall of the union of the pipes `pieces` (straight segments)."""
+    best, nearest = None, np.inf
+    for piece in pieces:
+        a = piece.axis / np.linalg.norm(piece.axis)
+        v = origin - piece.start
+        vp, dp = v - (v @ a) * a, ray - (ray @ a) * a
+        qa, qb, qc = dp @ dp, 2 * vp @ dp, vp @ vp - radius * radius
+        disc = qb * qb - 4 * qa * qc
+        if qa <= 0 or disc < 0:
+            continue
+        lam = (-qb + np.sqrt(disc)) / (2 * qa)
+        p = origin + lam * ray
+        if not (lam > 0 and lam < nearest and 0 <= (p - piece.start) @ a <= piece.length):
+            continue
+        if not any(_inside(other, radius, p) for other in pieces if other is not piece):
+            best, nearest = p, lam
+    return best
+
+
+def _inside(piece, radius: float, p: np.ndarray) -> bool:
+    a = piece.axis / np.linalg.norm(piece.axis)
+    w = p - piece.start
+    h = w @ a
+    return 1e-4 < h < piece.length - 1e-4 and np.linalg.norm(w - h * a) < radius - 1e-5
+
+
+def exact_observations(front, camera, network, R: np.ndarray, C: np.ndarray) -> list[np.ndarray | None]:
+    """Per keyframe: (N, 2) exact pixels of its observations, NaN where the track's point is unknown."""
+    pieces = network.straight_pieces()
+    points: dict[int, np.ndarray | None] = {}
+    out = []
+    for k, kf in enumerate(front.keyframes):
+        rays = kf.bearings @ R[k].T
+        for row, tid in enumerate(kf.track_ids.tolist()):
+            if tid not in points:
+                points[tid] = wall_point(pieces, network.radius_m, C[k], rays[row])
+        X = np.array([points[t] if points[t] is not None else [np.nan] * 3 for t in kf.track_ids.tolist()])
+        uv = np.full((len(X), 2), np.nan)
+        known = np.all(np.isfinite(X), axis=1)
+        if known.any():
+            uv[known] = camera.project((X[known] - C[k]) @ R[k])[0]
+        out.append(uv)
+    return out
+
+
+def motion_and_place(front, exact: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per keyframe: each observation's unit image motion since its track's previous observation (zero for a
+    first one) and its place in the track (0 = first), from the exact pixels."""
+    previous: dict[int, np.ndarray] = {}
+    place: dict[int, int] = {}
+    motions, places = [], []
+    for kf, uv in zip(front.keyframes, exact):
+        m, p = np.zeros((len(uv), 2)), np.zeros(len(uv), int)
+        for row, tid in enumerate(kf.track_ids.tolist()):
+            if tid in previous:
+                step = uv[row] - previous[tid]
+                n = np.linalg.norm(step)
+                m[row] = step / n if n > 0 else 0.0
+                place[tid] += 1
+            else:
+                place[tid] = 0
+            p[row] = place[tid]
+            previous[tid] = uv[row]
+        motions.append(m)
+        places.append(p)
+    return motions, places
+
+
+def part_pixels(part: str, tracked: np.ndarray, exact: np.ndarray, motion: np.ndarray, place: np.ndarray,
+                centre_v: float) -> np.ndarray:
+    """One keyframe's pixels for `part` (see the module docstring)."""
+    error = tracked - exact
+    along = (error * motion).sum(axis=1)[:, None] * motion
+    keep = {"all": np.ones(len(error), bool), "exact": np.zeros(len(error), bool),
+            "top": exact[:, 1] < centre_v, "bottom": exact[:, 1] >= centre_v,
+            "early": (place >= 1) & (place <= 2), "late": place >= 3}
+    if part == "along":
+        added = along
+    elif part == "across":
+        added = error - along
+    else:
+        added = np.where(keep[part][:, None], error, 0.0)
+    out = exact + added
+    return np.where(np.all(np.isfinite(exact), axis=1)[:, None], out, tracked)
+
+
+def judged(net, G: np.ndarray, network) -> dict:
+    """Forward / reverse distance (a run that turns back) or Sim(3) scale, ATE and junction distances."""
+    P = net.map.poses[:, :3, 3]
+    far = int(np.argmax(np.linalg.norm(G - G[0], axis=1)))
+    if not network.junctions and 0 < far < len(G) - 1:
+        def pct(a, b):
+            g = np.linalg.norm(G[b] - G[a])
+            return 100 * (np.linalg.norm(P[b] - P[a]) - g) / g
+        return {"forward_pct": pct(0, far), "reverse_pct": pct(far, len(G) - 1)}
+    mp, mg = P.mean(0), G.mean(0)
+    U, S, Vt = np.linalg.svd((G - mg).T @ (P - mp))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    rot = U @ D @ Vt
+    s = float((S * np.diag(D)).sum() / ((P - mp) ** 2).sum())
+    ate = float(np.sqrt(np.mean(np.sum((s * (P - mp) @ rot.T - (G - mg)) ** 2, axis=1))))
+    truth = np.array([j.centroid for j in network.junctions])
+    found = [(np.asarray(j.centroid), int(np.argmin(np.linalg.norm(truth - (s * (np.asarray(j.centroid) - mp) @ rot.T
+                                                                            + mg), axis=1)))) for j in net.tees]
+    pairs = [100 * (np.linalg.norm(a - b) / np.linalg.norm(truth[i] - truth[j]) - 1)
+             for n, (a, i) in enumerate(found) for b, j in found[n + 1:] if i != j]
+    return {"sim3_scale": s, "ate_mm": 1000 * ate, "junction_distances_pct": pairs,
+            "max_abs_pct": float(np.max(np.abs(pairs))) if pairs else None}
+
+
+def along_by_place_and_sector(front, camera, exact, motions, places) -> tuple[dict, dict]:
+    """Mean tracked error along the motion (px) by place in the track and by 45 deg sector around the image's
+    centre."""
+    cam_centre = np.array([camera.width - 1, camera.height - 1]) / 2
+    e, p, ang = [], [], []
+    for kf, uv, m, q in zip(front.keyframes, exact, motions, places):
+        a = ((kf.keypoints - uv) * m).sum(axis=1)
+        ok = (q > 0) & np.isfinite(a) & (np.abs(a) < 2)
+        e.append(a[ok])
+        p.append(q[ok])
+        d = uv[ok] - cam_centre
+        ang.append(np.degrees(np.arctan2(d[:, 1], d[:, 0])))
+    e, p, ang = np.concatenate(e), np.concatenate(p), np.concatenate(ang)
+    by_place = {int(q): float(e[p == q].mean()) for q in range(1, 9) if (p == q).any()}
+    sector = np.floor((ang + 180) / 45).astype(int) % 8
+    by_sector = {f"{-180 + 45 * s:+d}..{-135 + 45 * s:+d}": float(e[sector == s].mean()) for s in range(8)
+                 if (sector == s).any()}
+    return by_place, by_sector
+
+
+def measure(root: Path, parts: list[str]) -> dict:
+    dataset = load_dataset(root)
+    settings = Settings()
+    network = load_network(root / "ground_truth" / "network.yaml")
+    front = track_and_classify(dataset, settings)
+    gt = read_tum(root / "ground_truth" / "poses.tum")
+    ts = np.asarray(gt.timestamps)
+    idx = [int(np.argmin(np.abs(ts - k.timestamp))) for k in front.keyframes]
+    R, C = gt.rotations[idx], gt.positions[idx]
+    exact = exact_observations(front, dataset.camera, network, R, C)
+    motions, places = motion_and_place(front, exact)
+    by_place, by_sector = along_by_place_and_sector(front, dataset.camera, exact, motions, places)
+    tracked = list(front.keyframes)
+    out = {"dataset": root.name, "keyframes": len(tracked),
+           "exact_share": float(np.mean(np.concatenate([np.all(np.isfinite(u), axis=1) for u in exact]))),
+           "along_motion_px_by_place": by_place, "along_motion_px_by_sector": by_sector, "parts": {}}
+    for part in parts:
+        kfs = []
+        for kf, uv, m, q in zip(tracked, exact, motions, places):
+            px = part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2)
+            bearings, _ = dataset.camera.unproject(px)
+            kfs.append(replace(kf, keypoints=px, bearings=bearings.reshape(-1, 3)))
+        front.keyframes[:] = kfs
+        t = time.perf_counter()
+        out["parts"][part] = dict(judged(map_network(front, dataset, settings), C, network),
+                                  seconds=time.perf_counter() - t)
+        print(f"{root.name} {part:<7s} " + ", ".join(f"{k} {_fmt(v)}" for k, v in out["parts"][part].items()),
+              flush=True)
+    front.keyframes[:] = tracked
+    return out
+
+
+def _fmt(v) -> str:
+    if isinstance(v, list):
+        return "[" + " ".join(f"{x:+.3f}" for x in v) + "]"
+    return f"{v:.5g}" if isinstance(v, float) else str(v)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("datasets", nargs="+")
+    ap.add_argument("--parts", nargs="+", default=["all", "exact", "along", "across"], choices=PARTS)
+    ap.add_argument("--json-out", default=str(Path(__file__).parent / "results" / "exact_observations.json"))
+    args = ap.parse_args()
+    results = []
+    for root in args.datasets:
+        r = measure(Path(root), args.parts)
+        print(f"{r['dataset']}: {r['keyframes']} keyframes, {100 * r['exact_share']:.1f} % of the observations "
+              "with an exact projection; tracked error along the motion (px)")
+        print("   by place in the track: " + " ".join(f"{p}: {v:+.4f}"
+                                                    for p, v in r["along_motion_px_by_place"].items()))
+        print("   by sector (deg, y down): " + " ".join(f"{s}: {v:+.4f}"
+                                                      for s, v in r["along_motion_px_by_sector"].items()))
+        results.append(r)
+    summary = {"benchmark": "exact_observations", "machine": platform.platform(), "cpus": os.cpu_count(),
+               "results": results}
+    Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json_out).write_text(json.dumps(summary, indent=2) + "\n")
+    print(f"wrote {args.json_out}")
+
+
+if __name__ == "__main__":
+    main()

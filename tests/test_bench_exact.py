@@ -1,0 +1,63 @@
+"""benchmarks/bench_exact_observations.py: the true wall point behind a ray, in a tee's union of pipes, and the
+parts of the tracking's error it hands the back end."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_exact_observations.py"
+_SPEC = importlib.util.spec_from_file_location("bench_exact_observations", _PATH)
+bench = importlib.util.module_from_spec(_SPEC)
+sys.modules[_SPEC.name] = bench
+_SPEC.loader.exec_module(bench)
+R = 0.15
+
+
+def pipe(start, end):
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    return SimpleNamespace(start=start, axis=(end - start) / np.linalg.norm(end - start),
+                           length=float(np.linalg.norm(end - start)))
+
+
+TEE = [pipe([0, 0, 0], [4, 0, 0]), pipe([2, 0, 0], [2, 1, 0])]  # a run along x, a branch along +y at x = 2
+
+
+def test_a_ray_to_the_wall_meets_it_at_the_radius():
+    origin = np.array([0.5, 0.0, -0.04])
+    ray = np.array([0.6, 0.0, -0.8])
+    p = bench.wall_point(TEE, R, origin, ray)
+    assert np.hypot(p[1], p[2]) == pytest.approx(R, abs=1e-12)
+    assert np.cross(p - origin, ray) == pytest.approx(np.zeros(3), abs=1e-12)
+
+
+def test_a_ray_into_the_side_opening_meets_the_branch_wall():
+    origin = np.array([1.9, 0.0, 0.0])
+    ray = np.array([0.5, 0.5, 0.0])
+    ray /= np.linalg.norm(ray)
+    p = bench.wall_point(TEE, R, origin, ray)
+    assert p[1] > R  # past where the run's own wall would be: through its opening
+    assert np.hypot(p[0] - 2.0, p[2]) == pytest.approx(R, abs=1e-12)
+
+
+def test_a_ray_past_the_pipes_meets_no_wall():
+    assert bench.wall_point(TEE, R, np.array([3.9, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])) is None
+
+
+def test_parts_hand_over_exact_pixels_plus_the_error_asked_for():
+    exact = np.array([[100.0, 100.0], [300.0, 400.0], [np.nan, np.nan]])
+    tracked = np.array([[100.3, 100.4], [299.0, 401.0], [50.0, 60.0]])
+    motion = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
+    place = np.array([1, 4, 0])
+    got = {p: bench.part_pixels(p, tracked, exact, motion, place, 240.0) for p in bench.PARTS}
+    expected = {"all": tracked[:2], "exact": exact[:2], "along": [[100.3, 100.0], [300.0, 401.0]],
+                "across": [[100.0, 100.4], [299.0, 400.0]], "top": [tracked[0], exact[1]],
+                "bottom": [exact[0], tracked[1]], "early": [tracked[0], exact[1]], "late": [exact[0], tracked[1]]}
+    for p in bench.PARTS:
+        np.testing.assert_allclose(got[p][:2], expected[p], atol=1e-12, err_msg=p)
+        np.testing.assert_allclose(got[p][2], tracked[2], err_msg=p)  # no exact projection: the tracked one stays
