@@ -40,44 +40,46 @@ from pipemap.trajectory import read_tum
 PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late")
 
 
-def wall_point(pieces, radius: float, origin: np.ndarray, ray: np.ndarray) -> np.ndarray | None:
-    """Where `ray` from `origin` first meets the wall of the union of the pipes `pieces` (straight segments)."""
-    best, nearest = None, np.inf
+def wall_points(pieces, radius: float, origin: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """(N, 3): where each ray (N, 3) from `origin` first meets the wall of the union of the pipes `pieces`
+    (straight segments), NaN where it meets none."""
+    rays = np.asarray(rays, float).reshape(-1, 3)
+    best = np.full((len(rays), 3), np.nan)
+    nearest = np.full(len(rays), np.inf)
     for piece in pieces:
         a = piece.axis / np.linalg.norm(piece.axis)
         v = origin - piece.start
-        vp, dp = v - (v @ a) * a, ray - (ray @ a) * a
-        qa, qb, qc = dp @ dp, 2 * vp @ dp, vp @ vp - radius * radius
-        disc = qb * qb - 4 * qa * qc
-        if qa <= 0 or disc < 0:
-            continue
-        lam = (-qb + np.sqrt(disc)) / (2 * qa)
-        p = origin + lam * ray
-        if not (lam > 0 and lam < nearest and 0 <= (p - piece.start) @ a <= piece.length):
-            continue
-        if not any(_inside(other, radius, p) for other in pieces if other is not piece):
-            best, nearest = p, lam
+        vp, dp = v - (v @ a) * a, rays - (rays @ a)[:, None] * a
+        qa, qb, qc = np.einsum("ij,ij->i", dp, dp), 2 * dp @ vp, vp @ vp - radius * radius
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lam = (-qb + np.sqrt(qb * qb - 4 * qa * qc)) / (2 * qa)
+        p = origin + lam[:, None] * rays
+        h = (p - piece.start) @ a
+        hit = np.isfinite(lam) & (lam > 0) & (lam < nearest) & (h >= 0) & (h <= piece.length)
+        for other in pieces:
+            if other is not piece and hit.any():
+                hit[hit] &= ~_inside(other, radius, p[hit])
+        best[hit], nearest[hit] = p[hit], lam[hit]
     return best
 
 
-def _inside(piece, radius: float, p: np.ndarray) -> bool:
+def _inside(piece, radius: float, p: np.ndarray) -> np.ndarray:
     a = piece.axis / np.linalg.norm(piece.axis)
     w = p - piece.start
     h = w @ a
-    return 1e-4 < h < piece.length - 1e-4 and np.linalg.norm(w - h * a) < radius - 1e-5
+    return (1e-4 < h) & (h < piece.length - 1e-4) & (np.linalg.norm(w - h[:, None] * a, axis=1) < radius - 1e-5)
 
 
 def exact_observations(front, camera, network, R: np.ndarray, C: np.ndarray) -> list[np.ndarray | None]:
     """Per keyframe: (N, 2) exact pixels of its observations, NaN where the track's point is unknown."""
     pieces = network.straight_pieces()
-    points: dict[int, np.ndarray | None] = {}
+    points: dict[int, np.ndarray] = {}
     out = []
     for k, kf in enumerate(front.keyframes):
-        rays = kf.bearings @ R[k].T
-        for row, tid in enumerate(kf.track_ids.tolist()):
-            if tid not in points:
-                points[tid] = wall_point(pieces, network.radius_m, C[k], rays[row])
-        X = np.array([points[t] if points[t] is not None else [np.nan] * 3 for t in kf.track_ids.tolist()])
+        new = [row for row, tid in enumerate(kf.track_ids.tolist()) if tid not in points]
+        found = wall_points(pieces, network.radius_m, C[k], kf.bearings[new] @ R[k].T)
+        points.update(zip(kf.track_ids[new].tolist(), found))
+        X = np.array([points[t] for t in kf.track_ids.tolist()]).reshape(-1, 3)
         uv = np.full((len(X), 2), np.nan)
         known = np.all(np.isfinite(X), axis=1)
         if known.any():

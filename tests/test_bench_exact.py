@@ -31,7 +31,7 @@ TEE = [pipe([0, 0, 0], [4, 0, 0]), pipe([2, 0, 0], [2, 1, 0])]  # a run along x,
 def test_a_ray_to_the_wall_meets_it_at_the_radius():
     origin = np.array([0.5, 0.0, -0.04])
     ray = np.array([0.6, 0.0, -0.8])
-    p = bench.wall_point(TEE, R, origin, ray)
+    p = bench.wall_points(TEE, R, origin, ray)[0]
     assert np.hypot(p[1], p[2]) == pytest.approx(R, abs=1e-12)
     assert np.cross(p - origin, ray) == pytest.approx(np.zeros(3), abs=1e-12)
 
@@ -40,13 +40,23 @@ def test_a_ray_into_the_side_opening_meets_the_branch_wall():
     origin = np.array([1.9, 0.0, 0.0])
     ray = np.array([0.5, 0.5, 0.0])
     ray /= np.linalg.norm(ray)
-    p = bench.wall_point(TEE, R, origin, ray)
+    p = bench.wall_points(TEE, R, origin, ray)[0]
     assert p[1] > R  # past where the run's own wall would be: through its opening
     assert np.hypot(p[0] - 2.0, p[2]) == pytest.approx(R, abs=1e-12)
 
 
 def test_a_ray_past_the_pipes_meets_no_wall():
-    assert bench.wall_point(TEE, R, np.array([3.9, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])) is None
+    assert np.isnan(bench.wall_points(TEE, R, np.array([3.9, 0.0, 0.0]), np.array([1.0, 0.0, 0.0]))).all()
+
+
+def test_rays_at_once_give_what_each_gives_alone():
+    rng = np.random.default_rng(3)
+    rays = rng.normal(size=(50, 3))
+    origin = np.array([1.9, 0.02, -0.03])
+    together = bench.wall_points(TEE, R, origin, rays)
+    alone = np.concatenate([bench.wall_points(TEE, R, origin, r) for r in rays])
+    np.testing.assert_array_equal(together, alone)
+    assert np.isfinite(together).all(axis=1).sum() > 40
 
 
 def test_parts_hand_over_exact_pixels_plus_the_error_asked_for():
