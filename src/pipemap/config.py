@@ -97,6 +97,13 @@ class FrontendSettings(_Section):
     anchor_bend_neighbours: int = Field(32, ge=0, description="the anchor warp's second-order term is fitted to this "
                                         "many neighbouring matches per keyframe step (0: affine only; an affine fit "
                                         "to the bent image motion misplaces the patch centre)")
+    predicted_settling_keyframes: int = Field(2, ge=0, description="on a predicted video (H.264, MPEG-4, ...) each "
+                                              "track's observations in this many keyframes after its first are left "
+                                              "out of the map (0: none): a predicted picture copies its content from "
+                                              "the pictures before, and matched against the patch cut where the track "
+                                              "began it lags most just after (H.264 CRF 28: -0.074, -0.048, -0.034 px "
+                                              "along the motion at the 2nd, 3rd, 4th observation; "
+                                              "bench_exact_observations.py)")
 
 
 class ClassificationSettings(_Section):

@@ -97,6 +97,11 @@ class Dataset:
     # -- images -------------------------------------------------------------------------
 
     @property
+    def predicted(self) -> bool:
+        """The frames are a video whose pictures are predicted from the pictures before them (H.264, MPEG-4, ...)."""
+        return bool(self.source.predicted)
+
+    @property
     def has_gain_mask(self) -> bool:
         return self.gain_mask_path is not None
 

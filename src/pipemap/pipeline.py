@@ -50,6 +50,7 @@ from pipemap.frontend import FeatureTracker
 from pipemap.frontend.angular import classification_for, scaled_settings
 from pipemap.frontend.classification import SequenceClass, SequenceClassifier
 from pipemap.frontend.section_labels import KeyframeClasses
+from pipemap.frontend.settling import SettlingFilter
 from pipemap.frontend.tracks import Keyframe
 from pipemap.frontend.tracks_io import write_frames_csv
 from pipemap.frontend.usable import UsableMask, usable_mask
@@ -159,6 +160,7 @@ def track_and_classify(dataset: Dataset, settings: Settings,
     start = time.perf_counter()
 
     log = FootageLog()
+    settle = SettlingFilter(settings.frontend.predicted_settling_keyframes if dataset.predicted else 0)
     stats = FrameStats.for_settings(settings)
     classes = None if classed is None else keyframe_classes(settings)
 
@@ -194,14 +196,14 @@ def track_and_classify(dataset: Dataset, settings: Settings,
                 break
             ahead.append(submit(prepare))
             frame, features = item
-            new = tracker.process(frame, features)
+            new = [settle(k) for k in tracker.process(frame, features)]
             keyframes.extend(new)
             if new and classes is not None:
                 hand_on(classes.update(keyframes, classifier.indices, classifier.raw))
             done += 1
             if progress is not None:
                 progress(done, total, len(keyframes))
-    keyframes.extend(tracker.finish())
+    keyframes.extend(settle(k) for k in tracker.finish())
     if classes is not None:
         hand_on(classes.update(keyframes, classifier.indices, classifier.raw, done=True))
     if done == 0:
@@ -210,6 +212,7 @@ def track_and_classify(dataset: Dataset, settings: Settings,
     # frontend: the stage's wall time; read/classification/extract ran beside it on the second thread.
     seconds = {"frontend": wall, "read": timing["read"], "classification": timing["classification"],
                "extract": timing["extract"]}
+    log.predicted, log.settling_left_out = dataset.predicted, settle.left_out
     return FrontEndResult(keyframes, classifier.result(), done, seconds, log, mask, stats,
                           None if classes is None else classes.bends)
 

@@ -85,5 +85,6 @@ def test_footage_log_is_json_ready(tmp_path):
     log = FootageLog(frames=5, repeated=[1, 2, 4], drops=[(3, 2)])
     doc = json.loads(json.dumps(log.to_dict()))
     assert doc == {"frames_read": 5, "repeated": 3, "repeated_frames": [[1, 2], [4, 4]], "dropped": 2,
-                   "drops": [{"before": 3, "missing": 2}], "damaged": 0, "damage": []}
+                   "drops": [{"before": 3, "missing": 2}], "damaged": 0, "damage": [], "predicted": False,
+                   "settling_left_out": 0}
     assert log.line() == "footage: 5 frames read, 3 repeated, 2 dropped in 1 gap"

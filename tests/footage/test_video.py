@@ -5,6 +5,8 @@ import pytest
 
 from pipemap.dataset import FootageLog, load_dataset
 from pipemap.errors import PipemapError
+from pipemap.footage.images import ImageFolder
+from pipemap.footage.video import VideoFile
 
 from footage_helpers import packets, texture_frames, write_dataset, write_video
 
@@ -151,3 +153,11 @@ def test_unreadable_videos_are_one_line_errors(tmp_path, frames40):
     with pytest.raises(PipemapError, match="run.mp4: cannot open video.*cut short") as info:
         load_dataset(write_dataset(tmp_path / "b", "../run.mp4"))
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("name, codec, predicted", [("run.mp4", "libx264", True), ("run.avi", "mjpeg", False),
+                                                    ("run.mkv", "ffv1", False), ("run.avi", "mpeg4", True)])
+def test_a_video_says_whether_its_pictures_are_predicted(tmp_path, name, codec, predicted):
+    write_video(tmp_path / name, texture_frames(3), codec)
+    assert VideoFile(tmp_path / name, 10.0).predicted is predicted
+    assert not ImageFolder([tmp_path / "a.jpg"], 10.0).predicted

@@ -83,6 +83,8 @@ class ImageFolder:
     def __len__(self) -> int:
         return len(self.paths)
 
+    predicted = False
+
     @property
     def timed(self) -> bool:
         return self._times is not None

@@ -49,12 +49,16 @@ class FootageLog:
     """Filled by `Dataset.frames(log=...)` while it streams: one per pass that the caller reports.
 
     frames: frames handed out (readable, repeated ones included); repeated: their indices, in order;
-    drops: (index of the frame after a gap, frames missing in the gap); damage: unreadable stretches."""
+    drops: (index of the frame after a gap, frames missing in the gap); damage: unreadable stretches;
+    predicted: a video whose pictures are predicted from earlier ones; settling_left_out: observations the tracking
+    made that the map leaves out for it (frontend/settling.py)."""
 
     frames: int = 0
     repeated: list[int] = field(default_factory=list)
     drops: list[tuple[int, int]] = field(default_factory=list)
     damage: list[Damage] = field(default_factory=list)
+    predicted: bool = False
+    settling_left_out: int = 0
 
     @property
     def dropped(self) -> int:
@@ -82,6 +86,8 @@ class FootageLog:
             "drops": [{"before": i, "missing": n} for i, n in self.drops],
             "damaged": self.damaged_frames,
             "damage": [d.to_dict() for d in self.damage],
+            "predicted": self.predicted,
+            "settling_left_out": self.settling_left_out,
         }
 
     def line(self) -> str:

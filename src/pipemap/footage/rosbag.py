@@ -127,6 +127,7 @@ def _why(exc: Exception) -> str:
 
 class RosBag:
     timed = True
+    predicted = False  # image topics, raw or compressed (JPEG, PNG), carry each picture alone
 
     def __init__(self, paths: list[Path], topic: str | None, yaml_path: Path):
         self.paths = paths

@@ -36,6 +36,7 @@ class FrameSource(Protocol):
 
     path: Path
     timed: bool  # the frames carry their own times (else times are index / fps and no drop can be seen)
+    predicted: bool  # a video whose pictures are predicted from the pictures before them (H.264, MPEG-4, ...)
 
     @property
     def origin(self) -> float: ...

@@ -51,6 +51,10 @@ class VideoIndex:
 
 
 _INDEX_CACHE: dict[tuple, VideoIndex] = {}
+# codecs whose pictures are predicted from earlier ones (motion-compensated); MJPEG, FFV1 and the like code each
+# picture alone
+PREDICTED_CODECS = frozenset({"h264", "hevc", "mpeg4", "mpeg2video", "mpeg1video", "h263", "msmpeg4v2", "msmpeg4v3",
+                              "vp8", "vp9", "av1", "theora", "wmv3", "vc1"})
 
 
 def _message(exc: Exception) -> str:
@@ -210,6 +214,10 @@ class VideoFile:
     @property
     def timed(self) -> bool:
         return self.index().pts is not None
+
+    @property
+    def predicted(self) -> bool:
+        return self.index().codec in PREDICTED_CODECS
 
     @property
     def origin(self) -> float:

@@ -1,0 +1,46 @@
+"""frontend/settling.py: a track's observations in the keyframes just after it began are left out, the rest kept."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipemap.frontend.settling import SettlingFilter
+from pipemap.frontend.tracks import Keyframe
+
+
+def keyframe(number: int, ids) -> Keyframe:
+    ids = np.asarray(ids, np.int64)
+    n = len(ids)
+    pts = np.column_stack([ids * 10.0, np.full(n, float(number))])
+    bearings = np.tile([0.0, 0.0, 1.0], (n, 1))
+    return Keyframe(number, number, float(number), pts, bearings, ids, np.arange(n) % 2 == 0, np.arange(n) % 3 == 0,
+                    np.eye(3), np.zeros(3), number > 0)
+
+
+def test_observations_one_and_two_after_a_track_began_are_left_out():
+    # track 0..2 begin at keyframe 0; 3, 4 at keyframe 1; track 1 ends after keyframe 1; 5 begins at keyframe 3
+    sequence = [[0, 1, 2], [0, 1, 2, 3, 4], [0, 2, 3, 4], [0, 2, 3, 4, 5], [0, 3, 5], [5]]
+    settle = SettlingFilter(2)
+    kept = [settle(keyframe(n, ids)).track_ids.tolist() for n, ids in enumerate(sequence)]
+    assert kept == [[0, 1, 2], [3, 4], [], [0, 2, 5], [0, 3], []]
+    assert settle.left_out == sum(map(len, sequence)) - sum(map(len, kept))
+
+
+def test_the_rows_left_stay_together():
+    settle = SettlingFilter(1)
+    settle(keyframe(0, [0, 1]))
+    full = keyframe(1, [0, 1, 2, 3])
+    out = settle(full)
+    keep = np.isin(full.track_ids, out.track_ids)
+    assert out.track_ids.tolist() == [2, 3]
+    for name in ("keypoints", "bearings", "inliers", "guided"):
+        np.testing.assert_array_equal(getattr(out, name), getattr(full, name)[keep], err_msg=name)
+    assert (out.R == full.R).all() and out.number == full.number and out.pose_valid == full.pose_valid
+
+
+def test_none_left_out_at_zero():
+    settle = SettlingFilter(0)
+    for n in range(3):
+        kf = keyframe(n, [0, 1, 2])
+        assert settle(kf) is kf
+    assert settle.left_out == 0
