@@ -97,13 +97,17 @@ class FrontendSettings(_Section):
     anchor_bend_neighbours: int = Field(32, ge=0, description="the anchor warp's second-order term is fitted to this "
                                         "many neighbouring matches per keyframe step (0: affine only; an affine fit "
                                         "to the bent image motion misplaces the patch centre)")
-    predicted_settling_keyframes: int = Field(2, ge=0, description="on a predicted video (H.264, MPEG-4, ...) each "
-                                              "track's observations in this many keyframes after its first are left "
-                                              "out of the map (0: none): a predicted picture copies its content from "
-                                              "the pictures before, and matched against the patch cut where the track "
-                                              "began it lags most just after (H.264 CRF 28: -0.074, -0.048, -0.034 px "
-                                              "along the motion at the 2nd, 3rd, 4th observation; "
+    predicted_settling_keyframes: int = Field(2, ge=0, description="on a video whose codec is in settling_codecs, "
+                                              "each track's observations in this many keyframes after its first are "
+                                              "left out of the map (0: none): a predicted picture copies its content "
+                                              "from the pictures before, and matched against the patch cut where the "
+                                              "track began it lags most just after (H.264 CRF 28: -0.074, -0.048, "
+                                              "-0.034 px along the motion at the 2nd, 3rd, 4th observation; "
                                               "bench_exact_observations.py)")
+    settling_codecs: list[str] = Field(["h264"], description="the video codecs (FFmpeg's names) that "
+                                       "predicted_settling_keyframes applies to: measured on fisheye-straight, H.264 "
+                                       "at CRF 28 went from -0.088 / -0.073 % (forward / reverse) to -0.040 / "
+                                       "-0.029 %, but MPEG-4 part 2 from +0.058 / -0.094 % to +0.114 / -0.177 %")
 
 
 class ClassificationSettings(_Section):

@@ -102,6 +102,11 @@ class Dataset:
         return bool(self.source.predicted)
 
     @property
+    def codec(self) -> str | None:
+        """A video's codec as FFmpeg names it ("h264"); None for images and bags."""
+        return self.source.codec
+
+    @property
     def has_gain_mask(self) -> bool:
         return self.gain_mask_path is not None
 

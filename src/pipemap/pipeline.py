@@ -160,7 +160,8 @@ def track_and_classify(dataset: Dataset, settings: Settings,
     start = time.perf_counter()
 
     log = FootageLog()
-    settle = SettlingFilter(settings.frontend.predicted_settling_keyframes if dataset.predicted else 0)
+    f = settings.frontend
+    settle = SettlingFilter(f.predicted_settling_keyframes if dataset.codec in f.settling_codecs else 0)
     stats = FrameStats.for_settings(settings)
     classes = None if classed is None else keyframe_classes(settings)
 

@@ -159,5 +159,8 @@ def test_unreadable_videos_are_one_line_errors(tmp_path, frames40):
                                                     ("run.mkv", "ffv1", False), ("run.avi", "mpeg4", True)])
 def test_a_video_says_whether_its_pictures_are_predicted(tmp_path, name, codec, predicted):
     write_video(tmp_path / name, texture_frames(3), codec)
-    assert VideoFile(tmp_path / name, 10.0).predicted is predicted
-    assert not ImageFolder([tmp_path / "a.jpg"], 10.0).predicted
+    video = VideoFile(tmp_path / name, 10.0)
+    assert video.predicted is predicted
+    assert video.codec == {"libx264": "h264"}.get(codec, codec)
+    images = ImageFolder([tmp_path / "a.jpg"], 10.0)
+    assert not images.predicted and images.codec is None

@@ -84,6 +84,7 @@ class ImageFolder:
         return len(self.paths)
 
     predicted = False
+    codec = None
 
     @property
     def timed(self) -> bool:

@@ -128,6 +128,7 @@ def _why(exc: Exception) -> str:
 class RosBag:
     timed = True
     predicted = False  # image topics, raw or compressed (JPEG, PNG), carry each picture alone
+    codec = None
 
     def __init__(self, paths: list[Path], topic: str | None, yaml_path: Path):
         self.paths = paths

@@ -37,6 +37,7 @@ class FrameSource(Protocol):
     path: Path
     timed: bool  # the frames carry their own times (else times are index / fps and no drop can be seen)
     predicted: bool  # a video whose pictures are predicted from the pictures before them (H.264, MPEG-4, ...)
+    codec: str | None  # a video's codec as FFmpeg names it ("h264"); None for images
 
     @property
     def origin(self) -> float: ...

@@ -216,8 +216,12 @@ class VideoFile:
         return self.index().pts is not None
 
     @property
+    def codec(self) -> str:
+        return self.index().codec
+
+    @property
     def predicted(self) -> bool:
-        return self.index().codec in PREDICTED_CODECS
+        return self.codec in PREDICTED_CODECS
 
     @property
     def origin(self) -> float:
