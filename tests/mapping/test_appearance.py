@@ -193,3 +193,18 @@ def test_bad_inputs_raise(loop_case):
         build_appearance(c.dataset, [10_000], c.poses[:1], c.pieces)
     with pytest.raises(PipemapError, match="min_theta_deg"):
         build_appearance(c.dataset, [0], c.poses[:1], c.pieces, AppearanceSettings(min_theta_deg=90, max_theta_deg=60))
+
+
+def test_map_written_a_few_rows_at_a_time_holds_every_seen_point(loop_case, loop_map, tmp_path, monkeypatch):
+    """write_maps locates and writes the map PLY_ROWS grid rows at a time (a whole piece's points and route
+    coordinates at once were the run's peak of memory): the file holds exactly the seen points, piece after
+    piece in grid order, with their grey levels, however small the blocks."""
+    from pipemap.mapping import appearance
+
+    monkeypatch.setattr(appearance, "PLY_ROWS", 7)
+    c = loop_case
+    appearance.write_maps(tmp_path, c.dataset, c.indices, c.poses, c.pieces)
+    Q, J = read_appearance_ply(tmp_path / "appearance.ply")
+    P, I = loop_map.points()
+    np.testing.assert_array_equal(Q, P.astype(np.float32))
+    np.testing.assert_array_equal(J, np.clip(np.rint(I), 0, 255).astype(np.uint8))

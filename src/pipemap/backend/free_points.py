@@ -10,6 +10,9 @@ import numpy as np
 from pipemap.backend.triangulate import triangulate_rays
 from pipemap.frontend.tracks import Keyframe
 
+# Points triangulated at a time: all of paper-loop route A's 245,000 at once took 520 MB of temporaries.
+POINTS_AT_ONCE = 32768
+
 
 def free_points(keyframes: list[Keyframe], poses: np.ndarray, track_ids: np.ndarray, *, min_parallax_deg: float,
                 max_ray_error_deg: float, min_views: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -31,11 +34,19 @@ def free_points(keyframes: list[Keyframe], poses: np.ndarray, track_ids: np.ndar
         dirs.append(kf.bearings[ok] @ R.T)
         centres.append(np.broadcast_to(c, (int(ok.sum()), 3)))
     M = len(wanted)
+    points, valid = np.full((M, 3), np.nan), np.zeros(M, bool)
     if not ids:
-        return np.full((M, 3), np.nan), np.zeros(M, bool)
+        return points, valid
+    # Each point's rays in their keyframe order (a stable sort), so that a part's sums are the whole's.
     idx = np.concatenate(ids)
-    tri = triangulate_rays(np.concatenate(centres), np.concatenate(dirs), idx, M, min_parallax_deg=min_parallax_deg,
-                           refine_iterations=5)
+    by_point = np.argsort(idx, kind="stable")
+    idx, centres, dirs = idx[by_point], np.concatenate(centres)[by_point], np.concatenate(dirs)[by_point]
     views = np.bincount(idx, minlength=M)
-    valid = tri.valid & (views >= min_views) & (tri.max_error_deg <= max_ray_error_deg)
-    return tri.points, valid
+    for a in range(0, M, POINTS_AT_ONCE):
+        b = min(a + POINTS_AT_ONCE, M)
+        lo, hi = np.searchsorted(idx, [a, b])
+        tri = triangulate_rays(centres[lo:hi], dirs[lo:hi], idx[lo:hi] - a, b - a, min_parallax_deg=min_parallax_deg,
+                               refine_iterations=5)
+        points[a:b] = tri.points
+        valid[a:b] = tri.valid & (views[a:b] >= min_views) & (tri.max_error_deg <= max_ray_error_deg)
+    return points, valid
