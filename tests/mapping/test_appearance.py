@@ -208,3 +208,34 @@ def test_map_written_a_few_rows_at_a_time_holds_every_seen_point(loop_case, loop
     P, I = loop_map.points()
     np.testing.assert_array_equal(Q, P.astype(np.float32))
     np.testing.assert_array_equal(J, np.clip(np.rint(I), 0, 255).astype(np.uint8))
+
+
+def test_sums_are_kept_only_for_the_wall_around_the_camera(loop_case, loop_map, monkeypatch):
+    """The weighted sums live in blocks of ACCUMULATOR_ROWS grid rows, made when a keyframe first samples
+    them and turned into grey levels once no later keyframe reaches them: the same map however the rows are
+    blocked, while only part of the wall holds sums at any time."""
+    from pipemap.mapping import appearance
+
+    live, most = [0], [0]
+    block, close = appearance._Sums._block, appearance._Sums.close
+
+    def counting_block(self, b):
+        if b not in self.blocks:
+            live[0] += 1
+            most[0] = max(most[0], live[0])
+        return block(self, b)
+
+    def counting_close(self, b):
+        live[0] -= b in self.blocks
+        close(self, b)
+
+    monkeypatch.setattr(appearance._Sums, "_block", counting_block)
+    monkeypatch.setattr(appearance._Sums, "close", counting_close)
+    monkeypatch.setattr(appearance, "ACCUMULATOR_ROWS", 5)
+    c = loop_case
+    blocked = build_appearance(c.dataset, c.indices, c.poses, c.pieces, AppearanceSettings())
+    rows = sum(pm.grid.shape[0] for pm in blocked.pieces)
+    assert live[0] == 0 and most[0] < 0.3 * rows / 5  # 18 % on this route
+    for a, b in zip(blocked.pieces, loop_map.pieces):
+        np.testing.assert_array_equal(a.seen, b.seen)
+        np.testing.assert_allclose(a.intensity[a.seen], b.intensity[b.seen], rtol=1e-6)

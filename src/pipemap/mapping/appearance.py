@@ -4,7 +4,9 @@ Every piece's wall is sampled on a regular (h, r*phi) grid (wall.py). Each grid 
 into every keyframe image, and its grey level is the mean of the bilinear samples over the
 keyframes that see it at a colatitude min_theta < theta < max_theta (the paper: 50..90 deg, the
 periphery of the fisheye image where its resolution is highest). Keyframe images are read
-once each, in order. Points that no keyframe sees are dropped.
+once each, in order. Points that no keyframe sees are dropped. The sums behind the means are held only
+for the wall the keyframes still to come can reach (`_Sums`), so that memory follows the length of the
+map at 5 bytes a point rather than 21.
 
 The mean is weighted: a sample's weight rises smoothly from 0 to 1 over `edge_taper_deg` inside
 either colatitude limit. Lighting and vignetting change strongly with colatitude, so a plain
@@ -54,19 +56,18 @@ from pipemap.inspection.route import piece_start_chainage, route_segment_of
 REACH_RADII = 2.0
 REACH_TAPER = 0.25  # fraction of the reach over which samples fade out (with edge_taper_deg > 0)
 _REMAP_WIDTH = 1024  # cv2.remap maps are kept 2-D and below its 32767 size limit
+ACCUMULATOR_ROWS = 128  # grid rows per block of sums (_Sums): 0.26 m of wall at 2 mm
 PLY_ROWS = 256  # grid rows located and written at a time (about 160,000 points of a 400 mm pipe)
 LIGHT_FIELD_FRAMES = 40  # keyframes spread along the run whose median is the light field (exposure.py)
 
 
 @dataclass
 class PieceMap:
-    """The appearance of one piece: sums and counts of grey samples on its grid."""
+    """The appearance of one piece on its grid: the weighted mean grey level of every point."""
 
     grid: WallGrid
     keep: np.ndarray  # (H, W) False inside another piece's opening
-    total: np.ndarray  # (H, W) float64 weighted sum of samples
-    weight: np.ndarray  # (H, W) float64 sum of weights
-    count: np.ndarray  # (H, W) int32 keyframes that saw the point
+    values: np.ndarray  # (H, W) float32 mean grey level, NaN where unseen or not wall (read-only)
 
     @property
     def piece(self) -> WallPiece:
@@ -79,17 +80,64 @@ class PieceMap:
     @property
     def intensity(self) -> np.ndarray:
         """(H, W) float32 mean grey level, NaN where unseen or not wall."""
-        return self.intensity_rows()
+        return self.values
 
     def seen_rows(self, rows: slice = slice(None)) -> np.ndarray:
-        return self.keep[rows] & (self.weight[rows] > 0)
+        return np.isfinite(self.values[rows])
 
     def intensity_rows(self, rows: slice = slice(None)) -> np.ndarray:
         """`intensity` of the grid rows `rows` alone."""
+        return self.values[rows]
+
+
+class _Sums:
+    """One piece's weighted sums of grey samples, ACCUMULATOR_ROWS grid rows to a block. A block is made when a
+    keyframe first adds to it and turned into the piece's grey levels once the last keyframe that reaches its
+    rows has been sampled, so that only the wall around the camera holds sums (on paper-loop route A all of
+    them, 21 bytes a point, had been 210 MB; a long run's grew with it)."""
+
+    def __init__(self, pm: PieceMap):
+        self.pm = pm
+        self.blocks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def add(self, ii: np.ndarray, jj: np.ndarray, w: np.ndarray, values: np.ndarray) -> None:
+        """(ii, jj) pairs are distinct within one keyframe, so fancy-index addition is exact."""
+        block = ii // ACCUMULATOR_ROWS
+        for b in np.unique(block).tolist():
+            sel = block == b
+            total, weight = self._block(b)
+            i, j = ii[sel] - b * ACCUMULATOR_ROWS, jj[sel]
+            total[i, j] += w[sel] * values[sel]
+            weight[i, j] += w[sel]
+
+    def _block(self, b: int) -> tuple[np.ndarray, np.ndarray]:
+        if b not in self.blocks:
+            rows = min(ACCUMULATOR_ROWS, self.pm.grid.shape[0] - b * ACCUMULATOR_ROWS)
+            shape = (rows, self.pm.grid.shape[1])
+            self.blocks[b] = (np.zeros(shape), np.zeros(shape))
+        return self.blocks[b]
+
+    def close(self, b: int) -> None:
+        """Block b's sums into mean (exposure-normalised) grey levels: no later keyframe reaches its rows."""
+        if b not in self.blocks:
+            return
+        total, weight = self.blocks.pop(b)
+        rows = slice(b * ACCUMULATOR_ROWS, b * ACCUMULATOR_ROWS + len(total))
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.minimum(self.total[rows] / self.weight[rows], 255.0).astype(np.float32)  # exposure-normalised
-        out[~self.seen_rows(rows)] = np.nan
-        return out
+            out = (total / weight).astype(np.float32)
+        out[~(self.pm.keep[rows] & (weight > 0))] = np.nan
+        self.pm.values[rows] = out
+
+    def finish(self, reference: float) -> None:
+        """Every block closed, the means scaled to the exposure levels' `reference` grey level (known once every
+        keyframe is read) and limited to 255 (a normalised level can pass it)."""
+        for b in list(self.blocks):
+            self.close(b)
+        values = self.pm.values
+        for start in range(0, len(values), ACCUMULATOR_ROWS):
+            rows = slice(start, start + ACCUMULATOR_ROWS)
+            values[rows] = np.minimum(values[rows] * reference, 255.0)
+        values.flags.writeable = False
 
 
 @dataclass
@@ -160,8 +208,7 @@ def build_appearance(dataset: Dataset, keyframe_indices, poses_T_wc, pieces: lis
                            f"dataset's {n} images", dataset.root)
     margin = INSIDE_MARGIN_SPACINGS * settings.spacing_m
     grids = [wall_grid(p, settings.spacing_m) for p in pieces]
-    maps = [PieceMap(g, opening_mask(g, pieces, margin), np.zeros(g.shape), np.zeros(g.shape),
-                     np.zeros(g.shape, np.int32)) for g in grids]
+    maps = [PieceMap(g, opening_mask(g, pieces, margin), np.full(g.shape, np.nan, np.float32)) for g in grids]
     sampler = _KeyframeSampler(dataset.camera, pieces, settings, usable)
     order = np.argsort(idx, kind="stable")
     exposure = None
@@ -171,19 +218,39 @@ def build_appearance(dataset: Dataset, keyframe_indices, poses_T_wc, pieces: lis
         exposure = ExposureLevels(dataset.camera, band, usable)
         spread_frames = _frames_at(dataset, spread, np.arange(len(spread)))
         exposure.use_light(exposure.light_field(f.image for f, _ in spread_frames))
+    sums = [_Sums(pm) for pm in maps]
+    closing = _closing_order(sampler, grids, R[order], t[order])
     done = 0
-    for frame, k in _frames_at(dataset, idx[order], order):
+    for q, (frame, k) in enumerate(_frames_at(dataset, idx[order], order)):
         image = frame.image if exposure is None else exposure.normalise(frame.image)
-        for pm in maps:
-            sampler.accumulate(pm, image, R[k], t[k])
+        for pm, acc in zip(maps, sums):
+            sampler.accumulate(pm, acc, image, R[k], t[k])
+        for m, b in closing.get(q, ()):
+            sums[m].close(b)
         done += 1
         if progress is not None:
             progress(done, len(idx))
-    if exposure is not None:
-        for pm in maps:
-            pm.total *= exposure.reference
+    for acc in sums:
+        acc.finish(1.0 if exposure is None else exposure.reference)
     return AppearanceMap(maps, done, sampler.projections, sampler.samples, time.perf_counter() - start, settings,
                          None if exposure is None else exposure.to_dict())
+
+
+def _closing_order(sampler: "_KeyframeSampler", grids: list[WallGrid], R: np.ndarray, t: np.ndarray
+                   ) -> dict[int, list[tuple[int, int]]]:
+    """{keyframe position q: [(piece, block)]}: the blocks of sums whose rows no keyframe after the q-th
+    (in sampling order, poses R, t) reaches."""
+    last: dict[tuple[int, int], int] = {}
+    for q in range(len(R)):
+        for m, grid in enumerate(grids):
+            rows = sampler.reached_rows(grid, R[q], t[q])
+            if rows.stop > rows.start:
+                for b in range(rows.start // ACCUMULATOR_ROWS, (rows.stop - 1) // ACCUMULATOR_ROWS + 1):
+                    last[(m, b)] = q
+    closing: dict[int, list[tuple[int, int]]] = {}
+    for key, q in last.items():
+        closing.setdefault(q, []).append(key)
+    return closing
 
 
 def _frames_at(dataset: Dataset, indices: np.ndarray, rows: np.ndarray) -> Iterator[tuple[Frame, int]]:
@@ -265,11 +332,16 @@ class _KeyframeSampler:
         y = np.clip((self.reach - np.sqrt(dist2)) / (REACH_TAPER * self.reach), 0.0, 1.0)
         return np.maximum(x * x * (3 - 2 * x) * y * y * (3 - 2 * y), 1e-6)
 
-    def accumulate(self, pm: PieceMap, image: np.ndarray, R: np.ndarray, c: np.ndarray) -> None:
-        p = pm.piece
+    def reached_rows(self, grid: WallGrid, R: np.ndarray, c: np.ndarray) -> slice:
+        """The grid rows a keyframe at (R, c) may sample (empty: none)."""
+        p = grid.piece
         if p.axis_distance(c) - p.radius > self.reach:
-            return
-        rows = self._rows(pm.grid, R, c)
+            return slice(0, 0)
+        return self._rows(grid, R, c)
+
+    def accumulate(self, pm: PieceMap, sums: _Sums, image: np.ndarray, R: np.ndarray, c: np.ndarray) -> None:
+        p = pm.piece
+        rows = self.reached_rows(pm.grid, R, c)
         if rows.stop <= rows.start:
             return
         P = pm.grid.points(rows)
@@ -297,10 +369,7 @@ class _KeyframeSampler:
         ii, jj = where[0][valid] + rows.start, where[1][valid]
         values = bilinear(image, uv[valid])
         w = self._weight(theta[where][valid], dist2[where][valid])
-        # (ii, jj) pairs are distinct within one keyframe, so fancy-index addition is exact
-        pm.total[ii, jj] += w * values
-        pm.weight[ii, jj] += w
-        pm.count[ii, jj] += 1
+        sums.add(ii, jj, w, values)
         self.samples += len(values)
 
 

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
 # this inside that piece's solid cylinder, in units of the grid spacing: one spacing absorbs the
 # sub-millimetre kinks where pieces of a sagging run meet.
 INSIDE_MARGIN_SPACINGS = 1.0
+MASK_ROWS = 256  # grid rows tested against the other pieces at a time
 
 
 def three_vectors(obj, keys, where: str) -> dict[str, np.ndarray]:
@@ -261,13 +262,14 @@ def sample_wall(piece: WallPiece, spacing_m: float,
 def opening_mask(grid: WallGrid, others, margin_m: float) -> np.ndarray:
     """(H, W) True where the grid point is wall: not deeper than margin_m inside any other piece."""
     keep = np.ones(grid.shape, bool)
-    P = grid.points()
-    for other in others:
-        if other is grid.piece:
-            continue
-        if not _may_overlap(grid.piece, other):
-            continue
-        keep &= ~inside_piece(P, other, margin_m)
+    near = [o for o in others if o is not grid.piece and _may_overlap(grid.piece, o)]
+    if not near:
+        return keep
+    for start in range(0, grid.shape[0], MASK_ROWS):  # a long piece's points at once would take gigabytes
+        rows = slice(start, start + MASK_ROWS)
+        P = grid.points(rows)
+        for other in near:
+            keep[rows] &= ~inside_piece(P, other, margin_m)
     return keep
 
 
