@@ -18,35 +18,39 @@ def free_points(keyframes: list[Keyframe], poses: np.ndarray, track_ids: np.ndar
                 max_ray_error_deg: float, min_views: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """(points (M, 3), valid (M,)) for the tracks `track_ids`, from every keyframe that observes them (poses
     (N, 4, 4) T_wc of `keyframes`). A point is valid with at least `min_views` rays, the parallax, and no ray
-    farther than `max_ray_error_deg` from it."""
+    farther than `max_ray_error_deg` from it.
+
+    Track ids are handed out in time, so POINTS_AT_ONCE consecutive ids are seen by a short run of keyframes:
+    each part gathers its rays from those alone (all of a long run's rays at once would take gigabytes), each
+    point's rays in keyframe order."""
     wanted = np.asarray(track_ids, np.int64)
-    order = np.argsort(wanted)
-    ids, centres, dirs = [], [], []
-    for k, kf in enumerate(keyframes):
-        if len(kf.track_ids) == 0:
-            continue
-        p = np.clip(np.searchsorted(wanted[order], kf.track_ids), 0, max(len(wanted) - 1, 0))
-        ok = wanted[order][p] == kf.track_ids if len(wanted) else np.zeros(len(kf.track_ids), bool)
-        if not ok.any():
-            continue
-        R, c = poses[k, :3, :3], poses[k, :3, 3]
-        ids.append(order[p[ok]])
-        dirs.append(kf.bearings[ok] @ R.T)
-        centres.append(np.broadcast_to(c, (int(ok.sum()), 3)))
     M = len(wanted)
     points, valid = np.full((M, 3), np.nan), np.zeros(M, bool)
-    if not ids:
-        return points, valid
-    # Each point's rays in their keyframe order (a stable sort), so that a part's sums are the whole's.
-    idx = np.concatenate(ids)
-    by_point = np.argsort(idx, kind="stable")
-    idx, centres, dirs = idx[by_point], np.concatenate(centres)[by_point], np.concatenate(dirs)[by_point]
-    views = np.bincount(idx, minlength=M)
+    order = np.argsort(wanted, kind="stable")
+    ids = wanted[order]
+    seen = [k for k, kf in enumerate(keyframes) if len(kf.track_ids)]
+    low = np.array([keyframes[k].track_ids.min() for k in seen], np.int64)
+    high = np.array([keyframes[k].track_ids.max() for k in seen], np.int64)
     for a in range(0, M, POINTS_AT_ONCE):
-        b = min(a + POINTS_AT_ONCE, M)
-        lo, hi = np.searchsorted(idx, [a, b])
-        tri = triangulate_rays(centres[lo:hi], dirs[lo:hi], idx[lo:hi] - a, b - a, min_parallax_deg=min_parallax_deg,
-                               refine_iterations=5)
-        points[a:b] = tri.points
-        valid[a:b] = tri.valid & (views[a:b] >= min_views) & (tri.max_error_deg <= max_ray_error_deg)
+        part = ids[a:a + POINTS_AT_ONCE]
+        rays = [_rays(keyframes[k], poses[k], part) for k in np.asarray(seen)[(high >= part[0]) & (low <= part[-1])]]
+        rays = [r for r in rays if len(r[0])]
+        if not rays:
+            continue
+        idx, centres, dirs = (np.concatenate(x) for x in zip(*rays))
+        by_point = np.argsort(idx, kind="stable")
+        idx, centres, dirs = idx[by_point], centres[by_point], dirs[by_point]
+        tri = triangulate_rays(centres, dirs, idx, len(part), min_parallax_deg=min_parallax_deg, refine_iterations=5)
+        views = np.bincount(idx, minlength=len(part))
+        rows = order[a:a + POINTS_AT_ONCE]
+        points[rows] = tri.points
+        valid[rows] = tri.valid & (views >= min_views) & (tri.max_error_deg <= max_ray_error_deg)
     return points, valid
+
+
+def _rays(kf: Keyframe, pose: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(position in the sorted `ids`, centre, world direction) of the keyframe's observations of those tracks."""
+    p = np.clip(np.searchsorted(ids, kf.track_ids), 0, len(ids) - 1)
+    ok = ids[p] == kf.track_ids
+    R, c = pose[:3, :3], pose[:3, 3]
+    return p[ok], np.broadcast_to(c, (int(ok.sum()), 3)), kf.bearings[ok] @ R.T

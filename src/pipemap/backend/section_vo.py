@@ -105,11 +105,29 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(values[order][np.searchsorted(cw, 0.5 * cw[-1])])
 
 
-class StraightVO:
-    """Feed keyframes in order with `add`; `finish` closes the last section and returns the result."""
+@dataclass(frozen=True)
+class SpentKeyframe:
+    """What StraightVO keeps of a keyframe that no window can reach any more (`forget_spent`)."""
 
-    def __init__(self, camera: CameraModel, radius: float, settings: Settings | None = None):
+    number: int
+    index: int
+    timestamp: float
+
+
+# Keyframes beyond the window kept whole, besides the window itself (a window reaches `bundle.window` back).
+SPENT_MARGIN = 5
+
+
+class StraightVO:
+    """Feed keyframes in order with `add`; `finish` closes the last section and returns the result.
+    `forget_spent`: keep only the number, image index and time of keyframes more than a window behind the newest
+    (where the VO runs in a process of its own, whose keyframes the run holds anyway), so that its memory does
+    not grow with their features."""
+
+    def __init__(self, camera: CameraModel, radius: float, settings: Settings | None = None,
+                 forget_spent: bool = False):
         self.camera = camera
+        self.forget_spent = forget_spent
         self.radius = float(radius)
         if not (np.isfinite(self.radius) and self.radius > 0):
             raise ValueError(f"the pipe radius must be positive, got {radius!r}")
@@ -200,6 +218,10 @@ class StraightVO:
             c = cp - R @ (kf.t * s)
             R, c = self._resect(kf, R, c)
         self.keyframes.append(kf)
+        spent = k - self.b.window - SPENT_MARGIN
+        if self.forget_spent and spent >= 0:
+            old = self.keyframes[spent]
+            self.keyframes[spent] = SpentKeyframe(old.number, old.index, old.timestamp)
         self.R.append(R)
         self.c.append(c)
         self.active.append(np.ones(len(tids), bool))

@@ -31,7 +31,7 @@ def _serve(camera, radius: float, settings, inbox, outbox) -> None:
 
     try:
         with threadpool_limits(1, user_api="blas"):  # as the run's own process: the same sums in the same order
-            vo = StraightVO(camera, radius, settings)
+            vo = StraightVO(camera, radius, settings, forget_spent=True)
             while (item := inbox.get()) is not None:
                 vo.add(*item)
             result = vo.finish()

@@ -205,6 +205,13 @@ def _paper_loop(width, height, route, seed):
     return _loop_setup("paper-loop", table_i_corners(), width, height, route, seed)
 
 
+def _long_loop(width, height, route, seed):
+    # paper-loop's pipe, lights and camera at 640x480 around a 64 m square: route A drives about 256 m, 25,900
+    # frames at 1 cm, so that time per frame and memory can be measured over a run as long as the paper's dataset A
+    corners = np.array([[0, 0, 0], [64.0, 0, 0], [64.0, 64.0, 0], [0, 64.0, 0]], float)
+    return _loop_setup("long-loop", corners, width or 640, height or 480, route, seed)
+
+
 # Route A starts 0.75 m short of T1 and ends 0.45 m short of it, a lap later: 0.3 m of the first side
 # is driven twice (loop closure needs 0.2 m), and neither end is within 2 radii of a tee.
 _DEMO_ENDS = {"A": dict(start_back=0.75, end_before=-0.3), "B": dict(start_back=0.6, end_before=0.4)}
@@ -436,6 +443,8 @@ def _white_card(width, height, route, seed):
 
 register_preset("paper-loop", "fisheye paper network: 400 mm tee loop after Table I, 190 deg fisheye 1280x960, 7.5 fps",
                 ("A", "B"), _paper_loop)
+register_preset("long-loop", "paper-loop's 400 mm pipe and fisheye at 640x480 around a 64 m x 64 m tee loop: "
+                "route A about 25,900 frames (memory and speed over a long run)", ("A", "B"), _long_loop)
 register_preset("paper-straight-6in", "2010 report pipe 1: 6 m x 153.32 mm, perspective 1024x768 70 deg, 4 LEDs",
                 ("forward", "forward-reverse"), _six_inch)
 register_preset("paper-straight-16in", "2010 report pipe 2: 4 m x 387.56 mm, perspective 640x480 25 deg, 4 LEDs",
