@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pipemap.backend.section_vo import run_straight
+from pipemap.backend.section_vo import StraightVO, run_straight
 from pipemap.backend.triangulate import triangulate_rays, triangulate_two_view
 from pipemap.config import load_settings
 from pipemap.dataset import load_dataset
@@ -131,6 +131,27 @@ def test_straight_vo_deterministic(straight_run):
     assert np.array_equal(a.points, b.points)
 
 
+def test_forgetting_spent_keyframes_changes_nothing(straight_run):
+    """Beside the tracking the VO keeps only the number, index and time of keyframes more than a window behind
+    the newest (no window reaches them): the same poses and points as keeping them whole."""
+    from pipemap.backend.section_vo import SpentKeyframe
+
+    ds, keyframes = straight_run
+    settings = load_settings(overrides=["bundle.window=20", "bundle.step=10", "straight_vo.first_window=10"])
+    runs = []
+    for forget in (False, True):
+        vo = StraightVO(ds.camera, ds.radius_m, settings, forget_spent=forget)
+        for kf in keyframes:
+            vo.add(kf)
+        runs.append((vo, vo.finish()))
+    (whole, a), (forgetful, b) = runs
+    assert np.array_equal(a.poses, b.poses) and np.array_equal(a.points, b.points)
+    assert np.array_equal(a.timestamps, b.timestamps) and np.array_equal(a.indices, b.indices)
+    spent = [k for k in forgetful.keyframes if isinstance(k, SpentKeyframe)]
+    assert len(spent) == len(keyframes) - 20 - 5 > 0
+    assert not any(isinstance(k, SpentKeyframe) for k in whole.keyframes)
+
+
 def test_cylinder_term_holds_scale(straight_run):
     """With the cylinder term the section's length is right to 0.05 %. With tau = 0 only the first
     window's free-radius rescale gives metres and the windows carry it on; once the tracks lost their
@@ -170,7 +191,6 @@ def test_lost_tracking_starts_new_section(straight_run):
 
 def _slipping_run(ds, keyframes, overrides):
     """The VO with its chained scale made to slip: every step after the first window 4 % short."""
-    from pipemap.backend.section_vo import StraightVO
 
     vo = StraightVO(ds.camera, ds.radius_m,
                     load_settings(overrides=["straight_vo.resection_min_points=null"] + overrides))
@@ -211,7 +231,6 @@ def _turn_error_mdeg(ds, result, a: int, b: int) -> float:
 
 
 def _ending_run(ds, keyframes, end: int, overrides):
-    from pipemap.backend.section_vo import StraightVO
 
     vo = StraightVO(ds.camera, ds.radius_m, load_settings(overrides=overrides))
     for kf in keyframes:
