@@ -17,6 +17,7 @@ import argparse
 import json
 import platform
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -24,7 +25,6 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_network import run_case  # noqa: E402
 
 from pipemap.output import atomic_write_text  # noqa: E402
-from pipemap.sim.simulate import simulate  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -34,7 +34,10 @@ def dataset(data: Path, frames: int) -> Path:
     if not (root / "dataset.yaml").exists():
         shutil.rmtree(root, ignore_errors=True)
         root.parent.mkdir(parents=True, exist_ok=True)
-        simulate("long-loop", root, width=640, height=480, route="A", frames=frames or None, seed=0, workers=2)
+        # in a child process: a run started from this one would count its renderer's memory (fork) as its own
+        cmd = [sys.executable, "-m", "pipemap", "simulate", "long-loop", "--out", str(root), "--width", "640",
+               "--height", "480", "--route", "A", "--seed", "0", "--workers", "2"]
+        subprocess.run(cmd + (["--frames", str(frames)] if frames else []), check=True, capture_output=True)
     return root
 
 

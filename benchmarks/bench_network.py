@@ -30,7 +30,6 @@ from pathlib import Path
 from tree_memory import TreeMemory
 
 from pipemap.evaluation import evaluate
-from pipemap.sim.simulate import simulate
 
 
 def dataset(args, route: str, frames: int | None = None) -> Path:
@@ -39,8 +38,11 @@ def dataset(args, route: str, frames: int | None = None) -> Path:
     if not (root / "dataset.yaml").exists():
         shutil.rmtree(root, ignore_errors=True)
         root.parent.mkdir(parents=True, exist_ok=True)
-        simulate("paper-loop", root, width=args.width, height=args.height, route=route, frames=frames, seed=args.seed,
-                 workers=2)
+        # in a child process: a run started from this one would count its renderer's memory (fork) as its own
+        cmd = [sys.executable, "-m", "pipemap", "simulate", "paper-loop", "--out", str(root),
+               "--width", str(args.width), "--height", str(args.height), "--route", route, "--seed", str(args.seed),
+               "--workers", "2"]
+        subprocess.run(cmd + (["--frames", str(frames)] if frames else []), check=True, capture_output=True)
     return root
 
 
