@@ -26,17 +26,35 @@ def _portable(exc: BaseException) -> BaseException:
         return RuntimeError(f"{type(exc).__name__}: {exc}")
 
 
+class _RunGone(Exception):
+    """The run's process ended without closing the inbox (it was killed)."""
+
+
+def _next(inbox):
+    """The next keyframe; _RunGone once the run's process is gone (no None will come, and a process left
+    waiting would outlive it)."""
+    while True:
+        try:
+            return inbox.get(timeout=_POLL_S)
+        except queue.Empty:
+            parent = multiprocessing.parent_process()
+            if parent is not None and not parent.is_alive():
+                raise _RunGone from None
+
+
 def _serve(camera, radius: float, settings, inbox, outbox) -> None:
     from threadpoolctl import threadpool_limits
 
     try:
         with threadpool_limits(1, user_api="blas"):  # as the run's own process: the same sums in the same order
             vo = StraightVO(camera, radius, settings, forget_spent=True)
-            while (item := inbox.get()) is not None:
+            while (item := _next(inbox)) is not None:
                 vo.add(*item)
             result = vo.finish()
         vo.keyframes = []  # the run has them: not sent back
         outbox.put(("ok", vo, result))
+    except _RunGone:
+        outbox.cancel_join_thread()  # nobody reads the outbox: leave at once
     except BaseException as exc:  # noqa: BLE001 - every failure goes back to the run
         outbox.put(("error", _portable(exc), None))
 
