@@ -80,6 +80,24 @@ def test_chunks_give_the_same_distances(monkeypatch):
     assert whole.shape == (1000,) and np.all(whole >= 0)
 
 
+def test_a_long_network_measured_against_nearby_segments_first_is_exact(monkeypatch):
+    """A chunk of points is measured against the segments near its own bounding box first (a 256 m loop has
+    hundreds of pipe pieces): the same distances as against every segment, points far from all of them
+    included, however the chunks fall."""
+    rng = np.random.default_rng(5)
+    corners = np.cumsum(rng.uniform(0.5, 3.0, (120, 3)) * [1, 1, 0.05], axis=0)
+    net = PipeNetwork(R, tuple(Segment(f"S{i}", a, b) for i, (a, b) in enumerate(zip(corners, corners[1:]))))
+    along = rng.integers(0, len(corners) - 1, 3000)
+    f = rng.uniform(-0.1, 1.1, (3000, 1))
+    pts = corners[along] + f * (corners[along + 1] - corners[along]) + rng.normal(0, 0.25, (3000, 3))
+    pts = np.concatenate([pts, rng.uniform(-20, 200, (200, 3))])  # and some far from every pipe
+    monkeypatch.setattr(wall_error, "CHUNK_POINTS", 100)
+    prefiltered, near = wall_distance(pts, net), wall_error.NEAR_M
+    monkeypatch.setattr(wall_error, "NEAR_M", np.inf)  # every segment a candidate
+    np.testing.assert_array_equal(prefiltered, wall_distance(pts, net))
+    assert np.sum(prefiltered > near) > 200  # the fallback was exercised
+
+
 # -- a synthetic result folder ----------------------------------------------------------------
 
 

@@ -48,6 +48,7 @@ WALL_TOLERANCE_M = 0.002  # issue 8's acceptance: within 2 mm of the true wall
 # nominal ends), so a wall point near a joint may lie just beyond both segments.
 END_TOLERANCE_M = 0.005
 CHUNK_POINTS = 250_000  # bounds the (chunk, segments) temporaries for maps of millions of points
+NEAR_M = 0.05  # wall_distance measures a chunk against the segments within this of its bounding box first
 
 
 @dataclass(frozen=True)
@@ -125,13 +126,23 @@ def wall_distance(points: np.ndarray, network: PipeNetwork, end_tolerance_m: flo
     out = np.full(len(p), np.inf)
     if lines:
         starts = np.array([s.start for s in lines])
+        ends = np.array([s.end for s in lines])
         axes = np.array([s.axis for s in lines])
         lengths = np.array([s.length for s in lines])
+        # A segment's wall lies inside its axis's bounding box widened by the radius and the end tolerance: a point
+        # farther than NEAR_M from that box is farther than NEAR_M from the wall. Each chunk is first measured
+        # against the segments near its own box only (a long network has hundreds); points found farther than
+        # NEAR_M from all of those are measured again against every segment, so the result is exact.
+        reach = network.radius_m + end_tolerance_m
+        box_lo, box_hi = np.minimum(starts, ends) - reach, np.maximum(starts, ends) + reach
         for lo in range(0, len(p), CHUNK_POINTS):
-            h, q2 = _axial_and_square(p[lo:lo + CHUNK_POINTS], starts, axes)
-            off = np.sqrt(np.maximum(q2 - h * h, 0.0)) - network.radius_m
-            beyond = np.maximum(np.maximum(-h, h - lengths) - end_tolerance_m, 0.0)
-            out[lo:lo + len(h)] = np.sqrt(np.min(off * off + beyond * beyond, axis=1))
+            chunk = p[lo:lo + CHUNK_POINTS]
+            near = np.all((box_lo <= chunk.max(axis=0) + NEAR_M) & (box_hi >= chunk.min(axis=0) - NEAR_M), axis=1)
+            d = _line_distance(chunk, starts[near], axes[near], lengths[near], network.radius_m, end_tolerance_m)
+            far = d > NEAR_M
+            if far.any():
+                d[far] = _line_distance(chunk[far], starts, axes, lengths, network.radius_m, end_tolerance_m)
+            out[lo:lo + len(chunk)] = d
     for s in arcs:
         q = p - s.centre
         e1 = (s.start - s.centre) / s.bend_radius
@@ -141,6 +152,16 @@ def wall_distance(points: np.ndarray, network: PipeNetwork, end_tolerance_m: flo
         beyond = np.maximum(s.bend_radius * np.maximum(-theta, theta - s.angle) - end_tolerance_m, 0.0)
         out = np.minimum(out, np.sqrt(off * off + beyond * beyond))
     return out
+
+
+def _line_distance(points, starts, axes, lengths, radius: float, end_tolerance_m: float) -> np.ndarray:
+    """(n,) distance of points to the nearest of the straight tubes (wall_distance); inf with no tube."""
+    if not len(starts):
+        return np.full(len(points), np.inf)
+    h, q2 = _axial_and_square(points, starts, axes)
+    off = np.sqrt(np.maximum(q2 - h * h, 0.0)) - radius
+    beyond = np.maximum(np.maximum(-h, h - lengths) - end_tolerance_m, 0.0)
+    return np.sqrt(np.min(off * off + beyond * beyond, axis=1))
 
 
 def _axial_and_square(points: np.ndarray, starts: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
