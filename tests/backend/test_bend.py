@@ -83,3 +83,22 @@ def test_fit_follows_a_kinked_joint_to_a_fraction_of_a_millimetre(joint):
     # A knot falls on the joint at 0.75 m but not at 0.9 m: linear pieces round the V off there.
     assert np.abs(err).max() < (0.1e-3 if joint == 0.75 else 0.35e-3)
     assert np.abs(o[:, 1] - np.polyval(np.polyfit(knots.z, o[:, 1], 1), knots.z)).max() < 0.05e-3
+
+
+def test_knot_normal_equations_equal_those_of_the_dense_jacobian():
+    """The fit sums J^T W J point by point over each point's two knots; the same as forming J (M, 2K)."""
+    from pipemap.geometry.bend import _knot_normal_equations, bent_distance
+    rng = np.random.default_rng(3)
+    h = rng.uniform(-0.2, 2.1, 500)  # some beyond the end knots, where the offset is the end knot's
+    ang = rng.uniform(0, 2 * np.pi, len(h))
+    across = np.column_stack([np.cos(ang), np.sin(ang)]) * (RADIUS + rng.normal(0, 0.003, len(h)))[:, None]
+    knots = AxisKnots.spanning(0.0, 1.9, 0.25)
+    o = rng.normal(0, 0.001, (len(knots), 2))
+    d, n, i, f = bent_distance(across, h, knots, o, RADIUS)
+    w = rng.uniform(0.5, 2.0, len(h))
+    _, J_p = local_distance(np.column_stack([across, h]), np.concatenate([np.zeros(4), o.ravel()]), RADIUS,
+                            knots=knots)[::2]
+    J = J_p[:, 4:]
+    H, g = _knot_normal_equations(i, f, n[:, :2], w, d, len(knots))
+    assert np.allclose(H, J.T @ (w[:, None] * J), rtol=1e-12, atol=1e-12)
+    assert np.allclose(g, J.T @ (w * d), rtol=1e-12, atol=1e-12)
