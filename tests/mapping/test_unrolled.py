@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 
 from pipemap.mapping import read_unrolled, write_unrolled
+from pipemap.mapping.unrolled import resample_weights
 from pipemap.mapping.appearance import write_maps
 
 from mapping_helpers import albedo_on_grid, high_pass
@@ -76,3 +78,21 @@ def test_write_maps_writes_both_outputs(loop_case, tmp_path):
     assert sorted(info["unrolled_images"]) == sorted(p.name for p in (tmp_path / "unrolled").glob("*.png"))
     assert info["keyframes"] == 20 and info["appearance_points"] > 100_000
     assert info["points_per_second"] > 0 and set(info["seconds"]) == {"appearance", "appearance_write"}
+
+
+@pytest.mark.parametrize("n_src, n_dst", [(600, 600), (600, 300), (601, 250), (600, 1100), (7, 3)])
+def test_resampling_keeps_a_ramp_at_the_cell_centres_and_matches_opencv(n_src, n_dst):
+    """Linear interpolation and box averages over whole samples return a linear ramp at each image cell's centre
+    (away from the clamped ends when enlarging), box averages over part samples within an eighth of a sample;
+    equal to cv2.resize where that is a whole-number shrink or linear."""
+    w = resample_weights(n_src, n_dst)
+    assert w.shape == (n_dst, n_src) and np.allclose(np.asarray(w.sum(axis=1)).ravel(), 1.0, atol=1e-12)
+    centres = (np.arange(n_dst) + 0.5) * n_src / n_dst - 0.5  # in source samples
+    got = w @ np.arange(n_src, dtype=float)
+    inner = (centres >= 0) & (centres <= n_src - 1)
+    exact = n_dst >= n_src or n_src % n_dst == 0
+    assert np.abs(got - centres)[inner].max() < (1e-9 if exact else 0.125)
+    ramp = np.tile(np.random.default_rng(1).uniform(0, 255, n_src).astype(np.float32), (4, 1))
+    if exact:
+        ref = cv2.resize(ramp, (n_dst, 4), interpolation=cv2.INTER_LINEAR if n_dst >= n_src else cv2.INTER_AREA)
+        assert np.abs(ref[0] - w @ ramp[0]).max() < 1e-3

@@ -98,18 +98,17 @@ def bent_distance(xy: np.ndarray, z: np.ndarray, knots: AxisKnots | None, offset
     weights (1 - f, f) through which d d / d o = -weight * n_xy."""
     xy = np.asarray(xy, float)
     if knots is None:
-        o = np.zeros_like(xy)
-        slope = np.zeros_like(xy)
+        v = xy
         i = np.zeros(len(xy), np.int64)
         f = np.zeros(len(xy))
     else:
         i, f, inside = knots.segment(z)
         o, slope = knots._offset_and_slope(offsets, i, f, inside)
-    v = xy - o
+        v = xy - o
     rho = np.hypot(v[:, 0], v[:, 1])
-    safe = np.where(rho > 0, rho, 1.0)
-    nxy = v / safe[:, None]
-    n = np.column_stack([nxy, -np.einsum("mi,mi->m", nxy, slope)])
+    n = np.empty((len(xy), 3))
+    np.divide(v, np.where(rho > 0, rho, 1.0)[:, None], out=n[:, :2])
+    n[:, 2] = 0.0 if knots is None else -np.einsum("mi,mi->m", n[:, :2], slope)
     return rho - radius, n, i, f
 
 

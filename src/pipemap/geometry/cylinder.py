@@ -86,11 +86,17 @@ def local_distance(points_ref, params, radius: float, jacobians: bool = True, kn
     if not jacobians:
         return d
     J_x = n @ Rt
-    J_p = np.zeros((len(Xm), len(p)))
-    J_p[:, 0] = np.einsum("mi,mi->m", n, np.cross(_EX, Xt - tt))  # d R_X / d gamma = [e_x]x R_X
-    J_p[:, 1] = np.einsum("mi,mi->m", n @ Rx, np.cross(_EY, Xm @ Ry.T))  # R_X [e_y]x R_Y X_m
+    J_p = np.empty((len(Xm), len(p)))
+    v = Xt - tt  # R_X R_Y X_m
+    # d R_X / d gamma = [e_x]x R_X:  n . (e_x x v) = n_z v_y - n_y v_z
+    J_p[:, 0] = n[:, 2] * v[:, 1] - n[:, 1] * v[:, 2]
+    # R_X [e_y]x R_Y X_m:  (n R_X) . (e_y x Y) = m_x Y_z - m_z Y_x, Y = R_Y X_m
+    m = n @ Rx
+    Y = Xm @ Ry.T
+    J_p[:, 1] = m[:, 0] * Y[:, 2] - m[:, 2] * Y[:, 0]
     J_p[:, 2] = n[:, 0]
     J_p[:, 3] = n[:, 1]
+    J_p[:, 4:] = 0.0
     if knots is not None:
         rows = np.arange(len(Xm))
         for c in range(2):

@@ -17,39 +17,41 @@ from pipemap.config import QualitySettings
 from pipemap.quality.verdict import FAILED, SUSPECT, Check, RunVerdict, SectionVerdict, above, below
 
 _MIN_PARALLAX_DEG = 2.0  # tracks seen over less are too poorly triangulated to say anything about the radius
+RAY_BLOCK = 128  # keyframes whose rays are summed at a time
 
 
 def free_radius(keyframes, poses: np.ndarray, first: int, last: int, axis_origin: np.ndarray,
                 axis_direction: np.ndarray, min_points: int) -> tuple[float | None, int]:
     """Median distance from the axis of the tracks seen by keyframes first..last, each triangulated
     (least-squares ray intersection) from the final poses alone; (None, n) with fewer than min_points."""
-    tids, bearings, centres = [], [], []
-    for k in range(first, last + 1):
-        kf = keyframes[k]
-        if not len(kf.track_ids):
-            continue
-        R, c = poses[k, :3, :3], poses[k, :3, 3]
-        tids.append(kf.track_ids)
-        bearings.append(kf.bearings @ R.T)
-        centres.append(np.broadcast_to(c, (len(kf.track_ids), 3)))
-    if not tids:
+    ks = [k for k in range(first, last + 1) if len(keyframes[k].track_ids)]
+    if not ks:
         return None, 0
-    tids, d, c = np.concatenate(tids), np.concatenate(bearings), np.concatenate(centres)
-    ids, inv, counts = np.unique(tids, return_inverse=True, return_counts=True)
-    keep = counts[inv] >= 3
-    ids, inv = np.unique(tids[keep], return_inverse=True)
-    d, c = d[keep], c[keep]
+    ids, counts = np.unique(np.concatenate([keyframes[k].track_ids for k in ks]), return_counts=True)
+    ids = ids[counts >= 3]
     m = len(ids)
     if m == 0:
         return None, 0
-    # sum over a track's rays of (I - d d^T) X = (I - d d^T) c
-    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-    A = np.zeros((m, 3, 3))
-    b = np.zeros((m, 3))
-    np.add.at(A, inv, P)
-    np.add.at(b, inv, np.einsum("nij,nj->ni", P, c))
+    # sum over a track's rays of (I - d d^T) X = (I - d d^T) c, summed RAY_BLOCK keyframes at a time: all the
+    # rays of a long section at once had taken hundreds of megabytes
+    n, dd, b = np.zeros(m), np.zeros((m, 3, 3)), np.zeros((m, 3))
+    for start in range(0, len(ks), RAY_BLOCK):
+        block = ks[start:start + RAY_BLOCK]
+        tids = np.concatenate([keyframes[k].track_ids for k in block])
+        d = np.concatenate([keyframes[k].bearings @ poses[k, :3, :3].T for k in block])
+        c = np.repeat(poses[block, :3, 3], [len(keyframes[k].track_ids) for k in block], axis=0)
+        pos = np.minimum(np.searchsorted(ids, tids), m - 1)
+        hit = ids[pos] == tids
+        pos, d, c = pos[hit], d[hit], c[hit]
+        e = c - d * np.einsum("ni,ni->n", d, c)[:, None]
+        n += np.bincount(pos, minlength=m)
+        for i in range(3):
+            b[:, i] += np.bincount(pos, e[:, i], minlength=m)
+            for j in range(i, 3):
+                dd[:, i, j] += np.bincount(pos, d[:, i] * d[:, j], minlength=m)
+    dd = dd + np.triu(dd, 1).transpose(0, 2, 1)
+    A = n[:, None, None] * np.eye(3) - dd
     # parallax: the spread of a track's ray directions (smallest eigenvalue of A / count)
-    n = np.bincount(inv, minlength=m).astype(float)
     spread = np.linalg.eigvalsh(A / n[:, None, None])[:, 0]
     ok = spread > np.sin(np.radians(_MIN_PARALLAX_DEG)) ** 2 / 4
     if ok.sum() < min_points:
