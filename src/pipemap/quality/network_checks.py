@@ -11,27 +11,41 @@ trajectory does not bridge.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from pipemap.backend.network_map import stretch_cylinder
 from pipemap.config import QualitySettings
 from pipemap.quality.verdict import FAILED, SUSPECT, Check, RunVerdict, SectionVerdict, above, below
 
 _MIN_PARALLAX_DEG = 2.0  # tracks seen over less are too poorly triangulated to say anything about the radius
 RAY_BLOCK = 128  # keyframes whose rays are summed at a time
+FREE_RADIUS_STRETCH_RADII = 40.0  # a longer section's free radius is taken against the axes of stretches this long
+STRETCH_HUBER_M = 0.005  # Huber threshold of a stretch's cylinder fit (as the sections' own)
 
 
 def free_radius(keyframes, poses: np.ndarray, first: int, last: int, axis_origin: np.ndarray,
                 axis_direction: np.ndarray, min_points: int) -> tuple[float | None, int]:
     """Median distance from the axis of the tracks seen by keyframes first..last, each triangulated
     (least-squares ray intersection) from the final poses alone; (None, n) with fewer than min_points."""
+    dist = free_distances(keyframes, poses, first, last, axis_origin, axis_direction)
+    return (float(np.median(dist)) if len(dist) >= min_points else None), len(dist)
+
+
+def free_distances(keyframes, poses: np.ndarray, first: int, last: int, axis_origin: np.ndarray,
+                   axis_direction: np.ndarray) -> np.ndarray:
+    """Distances from the axis of the tracks seen by keyframes first..last (three rays or more, 2 degrees of
+    parallax), each triangulated from the final poses alone."""
+    none = np.zeros(0)
     ks = [k for k in range(first, last + 1) if len(keyframes[k].track_ids)]
     if not ks:
-        return None, 0
+        return none
     ids, counts = np.unique(np.concatenate([keyframes[k].track_ids for k in ks]), return_counts=True)
     ids = ids[counts >= 3]
     m = len(ids)
     if m == 0:
-        return None, 0
+        return none
     # sum over a track's rays of (I - d d^T) X = (I - d d^T) c, summed RAY_BLOCK keyframes at a time: all the
     # rays of a long section at once had taken hundreds of megabytes
     n, dd, b = np.zeros(m), np.zeros((m, 3, 3)), np.zeros((m, 3))
@@ -54,19 +68,56 @@ def free_radius(keyframes, poses: np.ndarray, first: int, last: int, axis_origin
     # parallax: the spread of a track's ray directions (smallest eigenvalue of A / count)
     spread = np.linalg.eigvalsh(A / n[:, None, None])[:, 0]
     ok = spread > np.sin(np.radians(_MIN_PARALLAX_DEG)) ** 2 / 4
-    if ok.sum() < min_points:
-        return None, int(ok.sum())
+    if not ok.any():
+        return none
     X = np.linalg.solve(A[ok], b[ok][:, :, None])[:, :, 0]
     u = axis_direction / np.linalg.norm(axis_direction)
     rel = X - axis_origin
-    dist = np.linalg.norm(rel - np.outer(rel @ u, u), axis=1)
-    return float(np.median(dist)), int(ok.sum())
+    return np.linalg.norm(rel - np.outer(rel @ u, u), axis=1)
+
+
+def section_free_radius(keyframes, poses: np.ndarray, first: int, last: int, whole, radius: float, min_points: int,
+                        wall: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[float | None, int]:
+    """free_radius of a straight section against its mapped cylinder `whole`; with `wall` (the map's points
+    and their track ids, sorted by id), a section longer than FREE_RADIUS_STRETCH_RADII radii is taken a stretch
+    of about that length at a time, each against the cylinder of the map's points along it, and the distances
+    pooled: over tens of metres the slow heading drift of a mapped run bends its pipe by centimetres, off any
+    one straight axis (a 64 m section had read 7 % off the given radius)."""
+    path = _path_length(poses, first, last, cumulative=True)
+    span = FREE_RADIUS_STRETCH_RADII * radius
+    if wall is None or path[-1] <= span:
+        return free_radius(keyframes, poses, first, last, whole.origin, whole.direction, min_points)
+    bounds = first + np.searchsorted(path, np.linspace(0.0, path[-1], math.ceil(path[-1] / span) + 1))
+    bounds[-1] = last + 1
+    dist = []
+    for k0, k1 in zip(bounds[:-1], bounds[1:] - 1):
+        if k1 - k0 < 2:
+            continue
+        fit = stretch_cylinder(keyframes, poses, int(k0), int(k1), wall[1], wall[0], radius, STRETCH_HUBER_M)
+        axis = whole if fit is None else fit.cylinder
+        dist.append(free_distances(keyframes, poses, int(k0), int(k1), axis.origin, axis.direction))
+    dist = np.concatenate(dist) if dist else np.zeros(0)
+    return (float(np.median(dist)) if len(dist) >= min_points else None), len(dist)
+
+
+def _path_length(poses: np.ndarray, first: int, last: int, cumulative: bool = False):
+    """The camera path's length from keyframe first to last, or its length at each of them."""
+    path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poses[first:last + 1, :3, 3], axis=0), axis=1))])
+    return path if cumulative else float(path[-1])
 
 
 def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_sections, junctions, joins, revisit,
-                    radius: float, q: QualitySettings, route_length_m: float) -> RunVerdict:
-    """The rating of every VO section of a network run and of the run's loop closure."""
+                    radius: float, q: QualitySettings, route_length_m: float,
+                    wall: tuple[np.ndarray, np.ndarray] | None = None) -> RunVerdict:
+    """The rating of every VO section of a network run and of the run's loop closure. `wall`: the map's points
+    and their track ids, which give long sections' free radius stretch by stretch (section_free_radius)."""
     mapped = {m.number: m for m in mapped_sections}
+    if wall is not None and any(_path_length(poses, s.first, s.last) > FREE_RADIUS_STRETCH_RADII * radius
+                                for s in vo_sections if s.kind == "straight"):
+        order = np.argsort(wall[1])
+        wall = (wall[0][order], wall[1][order])
+    else:
+        wall = None
     by_section: dict[int, list] = {}
     for w in windows:
         by_section.setdefault(w.section, []).append(w)
@@ -87,7 +138,8 @@ def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_s
         tracked = [kf.inliers.sum() / len(prev) for prev, kf in pairs if kf.pose_valid and len(prev)]
         v.figures["tracked_fraction"] = float(np.median(tracked)) if tracked else None
         if s.kind == "straight":
-            _straight_checks(v, s, by_section.get(s.number, []), keyframes, poses, mapped.get(s.number), radius, q)
+            _straight_checks(v, s, by_section.get(s.number, []), keyframes, poses, mapped.get(s.number), radius, q,
+                             wall)
         else:
             j = junction_of.get((s.first, s.last))
             if j is not None:
@@ -116,7 +168,8 @@ def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_s
     return RunVerdict(out, checks, gaps)
 
 
-def _straight_checks(v: SectionVerdict, s, windows, keyframes, poses, mapped, radius: float, q: QualitySettings):
+def _straight_checks(v: SectionVerdict, s, windows, keyframes, poses, mapped, radius: float, q: QualitySettings,
+                     wall=None):
     if v.keyframes < q.min_keyframes:
         v.checks.append(Check("keyframes", v.keyframes, SUSPECT, f"only {v.keyframes} keyframes"))
     if s.scale == "unit":
@@ -134,12 +187,12 @@ def _straight_checks(v: SectionVerdict, s, windows, keyframes, poses, mapped, ra
                           "wall residual, fraction of the radius,", fmt=lambda x: f"{100 * x:.1f} %"))
     r_free, n = (None, 0)
     if mapped is not None and mapped.cylinder is not None:
-        r_free, n = free_radius(keyframes, poses, s.first, s.last, mapped.cylinder.origin, mapped.cylinder.direction,
-                                q.min_free_radius_points)
+        r_free, n = section_free_radius(keyframes, poses, s.first, s.last, mapped.cylinder, radius,
+                                        q.min_free_radius_points, wall)
     v.figures["free_radius_m"] = r_free
     v.figures["free_radius_points"] = n
     v.checks.append(above("free radius", None if r_free is None else abs(r_free / radius - 1), q.free_radius,
                           "free radius is off the given one by", fmt=lambda x: f"{100 * x:.1f} %"))
 
 
-__all__ = ["free_radius", "network_verdict"]
+__all__ = ["free_radius", "free_distances", "section_free_radius", "network_verdict"]
