@@ -148,3 +148,53 @@ def test_wall_distance_along_the_view_matches_the_ray_cast():
     y = c[1] + t * np.sin(a)
     hit = t[np.argmax(np.hypot(c[0], y) >= 0.2)]
     assert wall_distance_along_view(c, 60.0, 0.2) == pytest.approx(hit, abs=1e-5)
+
+
+def _bowed_section(radius: float, length: float, sagitta: float, step: float = 0.05, seed: int = 0):
+    """Cameras along the axis of a pipe that bows `sagitta` across its `length` (an arc in the x-y plane, as a
+    long run's heading drift bends its map), each seeing the wall 0.3-1.5 m ahead of it: exact bearings."""
+    rng = np.random.default_rng(seed)
+    bow = length**2 / (8 * sagitta)  # the arc's radius
+
+    def axis(s):  # point and unit tangent of the axis at arc length s from the middle
+        a = s / bow
+        return np.c_[bow * np.sin(a), bow * (1 - np.cos(a)), 0 * a], np.c_[np.cos(a), np.sin(a), 0 * a]
+
+    s = rng.uniform(-length / 2, length / 2 + 1.6, 3000 * int(length))
+    phi = rng.uniform(0, 2 * np.pi, len(s))
+    p, t = axis(s)
+    n1 = np.c_[-t[:, 1], t[:, 0], 0 * s]
+    X = p + radius * (np.cos(phi)[:, None] * n1 + np.sin(phi)[:, None] * np.array([0.0, 0, 1]))
+    kfs, poses = [], []
+    for k, sk in enumerate(np.arange(-length / 2, length / 2, step)):
+        c, tk = (v[0] for v in axis(np.array([sk])))
+        R = np.column_stack([np.cross(tk, [0.0, 0, 1]), [0.0, 0, -1], tk])  # camera z along the axis
+        ids = np.flatnonzero((s > sk + 0.3) & (s < sk + 1.5))
+        b = (X[ids] - c) @ R
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        n = len(ids)
+        kfs.append(Keyframe(k, k, k / 10, np.zeros((n, 2)), b, ids, np.ones(n, bool), np.zeros(n, bool),
+                            np.eye(3), np.zeros(3), k > 0))
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, c
+        poses.append(T)
+    return kfs, np.array(poses), X
+
+
+def test_a_long_bowed_section_keeps_its_free_radius_stretch_by_stretch():
+    """A 20 m section bowed 30 cm (the map of a long run whose heading drifts) at the right scale: against one
+    straight axis its points read per cents off the radius, against its 8 m stretches' own axes they do not
+    (measured: 2.9 % and 0.04 %); a 3 % scale error still shows."""
+    from pipemap.geometry.cylinder import fit_cylinder
+    from pipemap.quality.network_checks import section_free_radius
+    kfs, poses, X = _bowed_section(0.2, 20.0, 0.3)
+    whole = fit_cylinder(X, 0.2, direction=np.array([1.0, 0, 0])).cylinder
+    last = len(kfs) - 1
+    straight, _ = section_free_radius(kfs, poses, 0, last, whole, 0.2, 30)
+    r, n = section_free_radius(kfs, poses, 0, last, whole, 0.2, 30, (X, np.arange(len(X))))
+    assert n > 10000
+    assert abs(straight / 0.2 - 1) > 0.02
+    assert abs(r / 0.2 - 1) < 0.001
+    poses[:, :3, 3] *= 1.03
+    r, _ = section_free_radius(kfs, poses, 0, last, whole, 0.2, 30, (X * 1.03, np.arange(len(X))))
+    assert r / 0.2 == pytest.approx(1.03, abs=0.003)
