@@ -66,8 +66,17 @@ class PieceMap:
     """The appearance of one piece on its grid: the weighted mean grey level of every point."""
 
     grid: WallGrid
-    keep: np.ndarray  # (H, W) False inside another piece's opening
+    keep_bits: np.ndarray  # (H, ceil(W / 8)) np.packbits of (H, W) bool: False inside another piece's opening
     values: np.ndarray  # (H, W) float32 mean grey level, NaN where unseen or not wall (read-only)
+
+    @classmethod
+    def empty(cls, grid: WallGrid, keep: np.ndarray) -> "PieceMap":
+        """No grey levels yet; `keep` is held as bits (a byte a grid point had been 80 MB on a 256 m run)."""
+        return cls(grid, np.packbits(keep, axis=1), np.full(grid.shape, np.nan, np.float32))
+
+    def keep(self, rows: slice = slice(None)) -> np.ndarray:
+        """(rows, W) bool: not inside another piece's opening."""
+        return np.unpackbits(self.keep_bits[rows], axis=1, count=self.grid.shape[1]).view(bool)
 
     @property
     def piece(self) -> WallPiece:
@@ -125,7 +134,7 @@ class _Sums:
         rows = slice(b * ACCUMULATOR_ROWS, b * ACCUMULATOR_ROWS + len(total))
         with np.errstate(invalid="ignore", divide="ignore"):
             out = (total / weight).astype(np.float32)
-        out[~(self.pm.keep[rows] & (weight > 0))] = np.nan
+        out[~(self.pm.keep(rows) & (weight > 0))] = np.nan
         self.pm.values[rows] = out
 
     def finish(self, reference: float) -> None:
@@ -208,7 +217,7 @@ def build_appearance(dataset: Dataset, keyframe_indices, poses_T_wc, pieces: lis
                            f"dataset's {n} images", dataset.root)
     margin = INSIDE_MARGIN_SPACINGS * settings.spacing_m
     grids = [wall_grid(p, settings.spacing_m) for p in pieces]
-    maps = [PieceMap(g, opening_mask(g, pieces, margin), np.full(g.shape, np.nan, np.float32)) for g in grids]
+    maps = [PieceMap.empty(g, opening_mask(g, pieces, margin)) for g in grids]
     sampler = _KeyframeSampler(dataset.camera, pieces, settings, usable)
     order = np.argsort(idx, kind="stable")
     exposure = None
@@ -349,7 +358,7 @@ class _KeyframeSampler:
         self.projections += X.shape[0] * X.shape[1]
         rho = np.hypot(X[..., 0], X[..., 1])
         theta = np.arctan2(rho, X[..., 2])
-        ok = (theta > self.theta_lo) & (theta < self.theta_hi) & pm.keep[rows]
+        ok = (theta > self.theta_lo) & (theta < self.theta_hi) & pm.keep(rows)
         dist2 = np.einsum("...i,...i->...", X, X)
         ok &= dist2 < self.reach * self.reach
         if not ok.any():
