@@ -2,6 +2,7 @@
 
 import cv2
 import numpy as np
+import pytest
 
 from pipemap.frontend.descriptors import describe, match_descriptors, smooth_for_templates
 from pipemap.frontend.harris import detect_corners, valid_mask
@@ -61,3 +62,34 @@ def test_descriptors_ignore_gain_and_offset_and_match_a_shifted_image(pipe_scene
     assert correct.mean() > 0.95
     # Mutual: no point of either image is used twice.
     assert len(set(i)) == len(i) and len(set(j)) == len(j)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_matching_within_the_flow_limit_equals_masking_every_pair(seed):
+    """The band search (corners in order of u, only image j's within reach of each group) finds the same mutual,
+    ratio-tested matches as the similarity of every pair with the far ones masked, corners exactly at the limit
+    included."""
+    rng = np.random.default_rng(seed)
+    n, m = int(rng.integers(1, 900)), int(rng.integers(1, 1100))
+    di = rng.normal(size=(n, 121)).astype(np.float32)
+    di /= np.linalg.norm(di, axis=1, keepdims=True)
+    k = min(n, m)
+    dj = rng.normal(size=(m, 121)).astype(np.float32)
+    dj[:k] = di[:k] + 0.1 * rng.normal(size=(k, 121)).astype(np.float32)
+    dj /= np.linalg.norm(dj, axis=1, keepdims=True)
+    pi = rng.uniform(0, [640, 480], (n, 2)).astype(np.float32)
+    pj = rng.uniform(0, [640, 480], (m, 2)).astype(np.float32)
+    pj[:k] = pi[:k] + rng.normal(0, 30, (k, 2))
+    pi[:3], pj[:3] = [100.0, 50.0], [180.0, 50.0]  # 80 px apart: still candidates
+    sim = di @ dj.T
+    sim[((pi[:, None] - pj[None]) ** 2).sum(axis=2) > np.float32(80.0**2)] = -2.0
+    rows = np.arange(n)
+    best_j = sim.argmax(axis=1)
+    best = sim[rows, best_j].copy()
+    mutual = sim.argmax(axis=0)[best_j] == rows
+    sim[rows, best_j] = -3.0
+    second = sim.max(axis=1) if m > 1 else np.full(n, -2.0)
+    good = mutual & ((1 - best) < 0.9 * (1 - second)) & (best >= 0.5)
+    i, j, s = match_descriptors(di, dj, pi, pj, ratio=0.9, min_similarity=0.5, max_flow_px=80.0)
+    assert np.array_equal(i, rows[good]) and np.array_equal(j, best_j[good])
+    assert np.allclose(s, best[good], atol=1e-6)

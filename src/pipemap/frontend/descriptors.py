@@ -61,19 +61,13 @@ def match_descriptors(
     empty = (np.zeros(0, int), np.zeros(0, int), np.zeros(0, np.float32))
     if len(desc_i) == 0 or len(desc_j) == 0:
         return empty
-    sim = desc_i @ desc_j.T
-    if max_flow_px is not None and points_i is not None and points_j is not None:
-        pi = np.asarray(points_i, np.float32)
-        pj = np.asarray(points_j, np.float32)
-        far = np.float32(max_flow_px**2)
-        # 64 rows at a time, so that the squared distances stay in cache (each entry is its own test)
-        for s in range(0, len(pi), 64):
-            d2 = np.subtract.outer(pi[s:s + 64, 0], pj[:, 0])
-            np.multiply(d2, d2, out=d2)
-            dy = np.subtract.outer(pi[s:s + 64, 1], pj[:, 1])
-            np.multiply(dy, dy, out=dy)
-            d2 += dy
-            np.putmask(sim[s:s + 64], d2 > far, -2.0)
+    if max_flow_px is None or points_i is None or points_j is None:
+        return _mutual_ratio(desc_i @ desc_j.T, ratio, min_similarity)
+    return _match_near(desc_i, desc_j, np.asarray(points_i, np.float32), np.asarray(points_j, np.float32), ratio,
+                       min_similarity, max_flow_px)
+
+
+def _mutual_ratio(sim: np.ndarray, ratio: float, min_similarity: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rows = np.arange(sim.shape[0])
     best_j = np.argmax(sim, axis=1)
     best = sim[rows, best_j].copy()
@@ -84,3 +78,47 @@ def match_descriptors(
     distinct = (1.0 - best) < ratio * (1.0 - second)
     good = mutual & distinct & (best >= min_similarity)
     return rows[good], best_j[good], best[good]
+
+
+_BAND_ROWS = 64  # corners of image i matched at a time: their candidates' squared distances stay in cache
+
+
+def _match_near(desc_i, desc_j, pi, pj, ratio: float, min_similarity: float, max_flow_px: float):
+    """match_descriptors with candidates within max_flow_px: both images' corners taken in order of u, so that
+    _BAND_ROWS corners of image i need only the band of image j's within max_flow_px of their u range (a third of
+    the image at 640x480), and only that band's similarities are formed and searched."""
+    far = np.float32(max_flow_px**2)
+    oi, oj = np.argsort(pi[:, 0], kind="stable"), np.argsort(pj[:, 0], kind="stable")
+    pi, pj, di, dj = pi[oi], pj[oj], desc_i[oi], desc_j[oj]
+    n, m = len(pi), len(pj)
+    best_j, best, second = np.zeros(n, np.int64), np.full(n, -2.0, np.float32), np.full(n, -2.0, np.float32)
+    column_best, column_row = np.full(m, -2.0, np.float32), np.full(m, -1, np.int64)
+    margin = max_flow_px + 1.0  # beyond it |du| alone puts a candidate out of reach, whatever the rounding
+    for s in range(0, n, _BAND_ROWS):
+        rows = slice(s, min(s + _BAND_ROWS, n))
+        lo = int(np.searchsorted(pj[:, 0], pi[rows.start, 0] - margin, side="left"))
+        hi = int(np.searchsorted(pj[:, 0], pi[rows.stop - 1, 0] + margin, side="right"))
+        if hi <= lo:
+            continue
+        sim = di[rows] @ dj[lo:hi].T
+        d2 = np.subtract.outer(pi[rows, 0], pj[lo:hi, 0])
+        np.multiply(d2, d2, out=d2)
+        dy = np.subtract.outer(pi[rows, 1], pj[lo:hi, 1])
+        np.multiply(dy, dy, out=dy)
+        d2 += dy
+        np.putmask(sim, d2 > far, -2.0)
+        r = np.arange(sim.shape[0])
+        j = np.argmax(sim, axis=0)
+        top = sim[j, np.arange(sim.shape[1])]
+        better = top > column_best[lo:hi]
+        column_best[lo:hi] = np.where(better, top, column_best[lo:hi])
+        column_row[lo:hi] = np.where(better, j + s, column_row[lo:hi])
+        k = np.argmax(sim, axis=1)
+        best_j[rows], best[rows] = k + lo, sim[r, k]
+        if sim.shape[1] > 1:
+            sim[r, k] = -3.0
+            second[rows] = sim.max(axis=1)
+    mutual = column_row[best_j] == np.arange(n)
+    good = np.flatnonzero(mutual & ((1.0 - best) < ratio * (1.0 - second)) & (best >= min_similarity))
+    good = good[np.argsort(oi[good])]  # in image i's order, as without the band
+    return oi[good], oj[best_j[good]], best[good]
