@@ -15,10 +15,12 @@ POINTS_AT_ONCE = 32768
 
 
 def free_points(keyframes: list[Keyframe], poses: np.ndarray, track_ids: np.ndarray, *, min_parallax_deg: float,
-                max_ray_error_deg: float, min_views: int = 3) -> tuple[np.ndarray, np.ndarray]:
+                max_ray_error_deg: float, min_views: int = 3, refine_iterations: int = 5
+                ) -> tuple[np.ndarray, np.ndarray]:
     """(points (M, 3), valid (M,)) for the tracks `track_ids`, from every keyframe that observes them (poses
     (N, 4, 4) T_wc of `keyframes`). A point is valid with at least `min_views` rays, the parallax, and no ray
-    farther than `max_ray_error_deg` from it.
+    farther than `max_ray_error_deg` from it; each point the rays' midpoint refined `refine_iterations` times
+    (triangulate_rays).
 
     Track ids are handed out in time, so POINTS_AT_ONCE consecutive ids are seen by a short run of keyframes:
     each part gathers its rays from those alone (all of a long run's rays at once would take gigabytes), each
@@ -40,7 +42,8 @@ def free_points(keyframes: list[Keyframe], poses: np.ndarray, track_ids: np.ndar
         idx, centres, dirs = (np.concatenate(x) for x in zip(*rays))
         by_point = np.argsort(idx, kind="stable")
         idx, centres, dirs = idx[by_point], centres[by_point], dirs[by_point]
-        tri = triangulate_rays(centres, dirs, idx, len(part), min_parallax_deg=min_parallax_deg, refine_iterations=5)
+        tri = triangulate_rays(centres, dirs, idx, len(part), min_parallax_deg=min_parallax_deg,
+                              refine_iterations=refine_iterations)
         views = np.bincount(idx, minlength=len(part))
         rows = order[a:a + POINTS_AT_ONCE]
         points[rows] = tri.points

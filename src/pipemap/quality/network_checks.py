@@ -15,12 +15,12 @@ import math
 
 import numpy as np
 
+from pipemap.backend.free_points import free_points
 from pipemap.backend.network_map import stretch_cylinder
 from pipemap.config import QualitySettings
 from pipemap.quality.verdict import FAILED, SUSPECT, Check, RunVerdict, SectionVerdict, above, below
 
 _MIN_PARALLAX_DEG = 2.0  # tracks seen over less are too poorly triangulated to say anything about the radius
-RAY_BLOCK = 128  # keyframes whose rays are summed at a time
 FREE_RADIUS_STRETCH_RADII = 40.0  # a longer section's free radius is taken against the axes of stretches this long
 STRETCH_HUBER_M = 0.005  # Huber threshold of a stretch's cylinder fit (as the sections' own)
 
@@ -36,43 +36,16 @@ def free_radius(keyframes, poses: np.ndarray, first: int, last: int, axis_origin
 def free_distances(keyframes, poses: np.ndarray, first: int, last: int, axis_origin: np.ndarray,
                    axis_direction: np.ndarray) -> np.ndarray:
     """Distances from the axis of the tracks seen by keyframes first..last (three rays or more, 2 degrees of
-    parallax), each triangulated from the final poses alone."""
-    none = np.zeros(0)
-    ks = [k for k in range(first, last + 1) if len(keyframes[k].track_ids)]
-    if not ks:
-        return none
-    ids, counts = np.unique(np.concatenate([keyframes[k].track_ids for k in ks]), return_counts=True)
-    ids = ids[counts >= 3]
-    m = len(ids)
-    if m == 0:
-        return none
-    # sum over a track's rays of (I - d d^T) X = (I - d d^T) c, summed RAY_BLOCK keyframes at a time: all the
-    # rays of a long section at once had taken hundreds of megabytes
-    n, dd, b = np.zeros(m), np.zeros((m, 3, 3)), np.zeros((m, 3))
-    for start in range(0, len(ks), RAY_BLOCK):
-        block = ks[start:start + RAY_BLOCK]
-        tids = np.concatenate([keyframes[k].track_ids for k in block])
-        d = np.concatenate([keyframes[k].bearings @ poses[k, :3, :3].T for k in block])
-        c = np.repeat(poses[block, :3, 3], [len(keyframes[k].track_ids) for k in block], axis=0)
-        pos = np.minimum(np.searchsorted(ids, tids), m - 1)
-        hit = ids[pos] == tids
-        pos, d, c = pos[hit], d[hit], c[hit]
-        e = c - d * np.einsum("ni,ni->n", d, c)[:, None]
-        n += np.bincount(pos, minlength=m)
-        for i in range(3):
-            b[:, i] += np.bincount(pos, e[:, i], minlength=m)
-            for j in range(i, 3):
-                dd[:, i, j] += np.bincount(pos, d[:, i] * d[:, j], minlength=m)
-    dd = dd + np.triu(dd, 1).transpose(0, 2, 1)
-    A = n[:, None, None] * np.eye(3) - dd
-    # parallax: the spread of a track's ray directions (smallest eigenvalue of A / count)
-    spread = np.linalg.eigvalsh(A / n[:, None, None])[:, 0]
-    ok = spread > np.sin(np.radians(_MIN_PARALLAX_DEG)) ** 2 / 4
-    if not ok.any():
-        return none
-    X = np.linalg.solve(A[ok], b[ok][:, :, None])[:, :, 0]
+    parallax), each the midpoint of its rays from the final poses alone (`backend.free_points`)."""
+    kfs = [keyframes[k] for k in range(first, last + 1)]
+    ids = [kf.track_ids for kf in kfs if len(kf.track_ids)]
+    if not ids:
+        return np.zeros(0)
+    ids, counts = np.unique(np.concatenate(ids), return_counts=True)
+    X, valid = free_points(kfs, poses[first:last + 1], ids[counts >= 3], min_parallax_deg=_MIN_PARALLAX_DEG,
+                           max_ray_error_deg=np.inf, min_views=3, refine_iterations=0)
     u = axis_direction / np.linalg.norm(axis_direction)
-    rel = X - axis_origin
+    rel = X[valid] - axis_origin
     return np.linalg.norm(rel - np.outer(rel @ u, u), axis=1)
 
 
