@@ -191,10 +191,10 @@ def test_a_long_bowed_section_keeps_its_free_radius_stretch_by_stretch():
     whole = fit_cylinder(X, 0.2, direction=np.array([1.0, 0, 0])).cylinder
     last = len(kfs) - 1
     straight, _ = section_free_radius(kfs, poses, 0, last, whole, 0.2, 30)
-    r, n = section_free_radius(kfs, poses, 0, last, whole, 0.2, 30, (X, np.arange(len(X))))
+    r, n = section_free_radius(kfs, poses, 0, last, whole, 0.2, 30, (X, np.arange(len(X)), 0.005))
     assert n > 10000
     assert abs(straight / 0.2 - 1) > 0.02
     assert abs(r / 0.2 - 1) < 0.001
     poses[:, :3, 3] *= 1.03
-    r, _ = section_free_radius(kfs, poses, 0, last, whole, 0.2, 30, (X * 1.03, np.arange(len(X))))
+    r, _ = section_free_radius(kfs, poses, 0, last, whole, 0.2, 30, (X * 1.03, np.arange(len(X)), 0.005))
     assert r / 0.2 == pytest.approx(1.03, abs=0.003)

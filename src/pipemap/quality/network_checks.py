@@ -22,7 +22,6 @@ from pipemap.quality.verdict import FAILED, SUSPECT, Check, RunVerdict, SectionV
 
 _MIN_PARALLAX_DEG = 2.0  # tracks seen over less are too poorly triangulated to say anything about the radius
 FREE_RADIUS_STRETCH_RADII = 40.0  # a longer section's free radius is taken against the axes of stretches this long
-STRETCH_HUBER_M = 0.005  # Huber threshold of a stretch's cylinder fit (as the sections' own)
 
 
 def free_radius(keyframes, poses: np.ndarray, first: int, last: int, axis_origin: np.ndarray,
@@ -50,12 +49,13 @@ def free_distances(keyframes, poses: np.ndarray, first: int, last: int, axis_ori
 
 
 def section_free_radius(keyframes, poses: np.ndarray, first: int, last: int, whole, radius: float, min_points: int,
-                        wall: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[float | None, int]:
+                        wall: tuple[np.ndarray, np.ndarray, float] | None = None) -> tuple[float | None, int]:
     """free_radius of a straight section against its mapped cylinder `whole`; with `wall` (the map's points
-    and their track ids, sorted by id), a section longer than FREE_RADIUS_STRETCH_RADII radii is taken a stretch
-    of about that length at a time, each against the cylinder of the map's points along it, and the distances
-    pooled: over tens of metres the slow heading drift of a mapped run bends its pipe by centimetres, off any
-    one straight axis (a 64 m section had read 7 % off the given radius)."""
+    and their track ids, sorted by id, and the Huber threshold of the sections' cylinder fits), a section longer
+    than FREE_RADIUS_STRETCH_RADII radii is taken a stretch of about that length at a time, each against the
+    cylinder of the map's points along it, and the distances pooled: over tens of metres the slow heading drift
+    of a mapped run bends its pipe by centimetres, off any one straight axis (a 64 m section had read 7 % off the
+    given radius)."""
     path = _path_length(poses, first, last, cumulative=True)
     span = FREE_RADIUS_STRETCH_RADII * radius
     if wall is None or path[-1] <= span:
@@ -66,7 +66,7 @@ def section_free_radius(keyframes, poses: np.ndarray, first: int, last: int, who
     for k0, k1 in zip(bounds[:-1], bounds[1:] - 1):
         if k1 - k0 < 2:
             continue
-        fit = stretch_cylinder(keyframes, poses, int(k0), int(k1), wall[1], wall[0], radius, STRETCH_HUBER_M)
+        fit = stretch_cylinder(keyframes, poses, int(k0), int(k1), wall[1], wall[0], radius, wall[2])
         axis = whole if fit is None else fit.cylinder
         dist.append(free_distances(keyframes, poses, int(k0), int(k1), axis.origin, axis.direction))
     dist = np.concatenate(dist) if dist else np.zeros(0)
@@ -81,14 +81,15 @@ def _path_length(poses: np.ndarray, first: int, last: int, cumulative: bool = Fa
 
 def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_sections, junctions, joins, revisit,
                     radius: float, q: QualitySettings, route_length_m: float,
-                    wall: tuple[np.ndarray, np.ndarray] | None = None) -> RunVerdict:
+                    wall: tuple[np.ndarray, np.ndarray, float] | None = None) -> RunVerdict:
     """The rating of every VO section of a network run and of the run's loop closure. `wall`: the map's points
-    and their track ids, which give long sections' free radius stretch by stretch (section_free_radius)."""
+    and their track ids and the sections' Huber threshold (bundle.huber_m), which give long sections' free radius
+    stretch by stretch (section_free_radius)."""
     mapped = {m.number: m for m in mapped_sections}
     if wall is not None and any(_path_length(poses, s.first, s.last) > FREE_RADIUS_STRETCH_RADII * radius
                                 for s in vo_sections if s.kind == "straight"):
         order = np.argsort(wall[1])
-        wall = (wall[0][order], wall[1][order])
+        wall = (wall[0][order], wall[1][order], wall[2])
     else:
         wall = None
     by_section: dict[int, list] = {}
