@@ -25,6 +25,14 @@ class _Section(BaseModel):
 class FrontendSettings(_Section):
     """Fisheye feature tracking (fisheye paper III-A)."""
 
+    tracking: Literal["flow", "descriptors"] = Field(
+        "flow", description="how a frame is followed from the last keyframe: flow (pyramidal Lucas-Kanade from frame "
+        "to frame, corners, RANSAC and the anchor match only where a keyframe is made: frontend/flow_tracker.py) or "
+        "descriptors (corners described and matched in every frame, guided ZNCC at keyframes: frontend/tracker.py)")
+    flow_window_px: int = Field(15, ge=5, description="Lucas-Kanade window between frames (px, odd), at the "
+                                "reference density: a finer camera's frames are followed at that density, halved "
+                                "once per doubling (frontend/flow_tracker.py), so a frame costs the same at any size")
+    flow_levels: int = Field(3, ge=0, description="Lucas-Kanade pyramid levels above the followed image")
     regions: tuple[int, int] = Field((2, 2), description="image split into rows x cols regions for Harris")
     corners_per_region: int = Field(200, gt=0, description="strongest Harris corners kept per region (N)")
     harris_k: float = Field(0.04, gt=0, description="Harris sensitivity")

@@ -46,7 +46,7 @@ from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
 from pipemap.footage import FootageLog
-from pipemap.frontend import FeatureTracker
+from pipemap.frontend import make_tracker
 from pipemap.frontend.angular import classification_for, scaled_settings
 from pipemap.frontend.classification import SequenceClass, SequenceClassifier
 from pipemap.frontend.section_labels import KeyframeClasses
@@ -149,7 +149,7 @@ def track_and_classify(dataset: Dataset, settings: Settings,
     so the result is the same as one thread's. `classed(keyframe, junction)` gets every keyframe in
     order as soon as its section class is final (section_labels.py), the last ones at the end."""
     mask = usable_mask(dataset, settings)
-    tracker = FeatureTracker(dataset.camera, settings.frontend, settings.seed, mask.usable)
+    tracker = make_tracker(dataset.camera, settings.frontend, settings.seed, mask.usable)
     classifier = SequenceClassifier(dataset.camera, classification_for(dataset.camera, settings.classification,
                                                                      settings.frontend.reference_px_per_deg),
                                     mask.usable)

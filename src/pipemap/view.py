@@ -19,7 +19,7 @@ import numpy as np
 from pipemap.config import Settings
 from pipemap.dataset import Dataset
 from pipemap.errors import PipemapError
-from pipemap.frontend.tracker import FeatureTracker
+from pipemap.frontend.tracker import make_tracker
 
 ALONG = "along"  # the camera looks along the pipe
 WALL = "wall"  # the camera looks at the wall beside it
@@ -99,7 +99,7 @@ def camera_view(dataset: Dataset, settings: Settings | None = None) -> ViewRepor
     camera = dataset.camera
     if camera.view_colatitudes()[1] > np.pi / 2:
         return ViewReport(ALONG, None, 0, 0)
-    tracker = FeatureTracker(camera, settings.frontend, settings.seed)
+    tracker = make_tracker(camera, settings.frontend, settings.seed)
     keyframes, frames = [], 0
     for frame in dataset.frames(stop=min(len(dataset), VIEW_MAX_FRAMES)):
         keyframes += tracker.process(frame)

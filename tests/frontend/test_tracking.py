@@ -10,9 +10,11 @@ from conftest import SIM_STRAIGHT, SIM_TEE, sim_wall_for
 
 from pipemap.evaluation.tracking import evaluate_tracking, raycast_network
 
+from pipemap.config import Settings
 from pipemap.dataset import Frame
 from pipemap.errors import PipemapError
 from pipemap.frontend import FeatureTracker, read_frames_csv, read_tracks_csv, run_tracking, track_frames
+from pipemap.frontend.flow_tracker import FlowTracker
 from pipemap.frontend.guided import guided_zncc, predict_positions
 from pipemap.frontend.harris import bearing_map, detect_corners, valid_mask
 from pipemap.frontend.relpose import essential_from_pose
@@ -74,9 +76,15 @@ def test_tracking_keeps_a_simple_synthetic_pipe(tracked, pipe_dataset):
     assert figures["keyframe_gap_max"] <= 3 * figures["keyframe_gap_median"]
 
 
-def test_accuracy_on_a_rendered_straight_pipe(sim_straight, tmp_path):
+def _settings(tracking: str) -> Settings:
+    s = Settings()
+    return s.model_copy(update={"frontend": s.frontend.model_copy(update={"tracking": tracking})})
+
+
+@pytest.mark.parametrize("tracking", ["flow", "descriptors"])
+def test_accuracy_on_a_rendered_straight_pipe(sim_straight, tmp_path, tracking):
     out = tmp_path / "out"
-    run_tracking(sim_straight, out)
+    run_tracking(sim_straight, out, _settings(tracking))
     f = evaluate_tracking(out, sim_straight, wall=sim_wall_for(SIM_STRAIGHT))
     # The acceptance targets are 0.1 deg, 2 deg, 90 %, 5 keyframes on longer renders
     # (benchmarks/bench_frontend.py); these bounds catch a bad regression on 30 frames. A track
@@ -89,9 +97,10 @@ def test_accuracy_on_a_rendered_straight_pipe(sim_straight, tmp_path):
     assert f["keyframe_gap_max"] <= 3 * f["keyframe_gap_median"] and f["lost_keyframes"] == 0
 
 
-def test_tracking_through_a_tee(sim_tee, tmp_path):
+@pytest.mark.parametrize("tracking", ["flow", "descriptors"])
+def test_tracking_through_a_tee(sim_tee, tmp_path, tracking):
     out = tmp_path / "out"
-    run_tracking(sim_tee, out)
+    run_tracking(sim_tee, out, _settings(tracking))
     f = evaluate_tracking(out, sim_tee, wall=sim_wall_for(SIM_TEE))
     assert f["lost_keyframes"] == 0
     # In metres: the robot accelerates over the first frames, which spreads keyframes over more images.
@@ -101,14 +110,15 @@ def test_tracking_through_a_tee(sim_tee, tmp_path):
     assert f["true_correspondence_fraction"] > 0.92
 
 
-def test_saturated_frames_do_not_break_tracking(sim_straight, tmp_path):
+@pytest.mark.parametrize("tracking", ["flow", "descriptors"])
+def test_saturated_frames_do_not_break_tracking(sim_straight, tmp_path, tracking):
     data = tmp_path / "glare"
     shutil.copytree(sim_straight, data)
     for i in (12, 13):
         path = data / "images" / f"{i:06d}.png"
         cv2.imwrite(str(path), np.full_like(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), 255))
     out = tmp_path / "out"
-    run_tracking(data, out)
+    run_tracking(data, out, _settings(tracking))
     frames = read_frames_csv(out / "frames.csv")
     assert not frames["keyframe"][12] and not frames["keyframe"][13]
     f = evaluate_tracking(out, data, wall=sim_wall_for(SIM_STRAIGHT))
@@ -151,7 +161,8 @@ def test_keyframes_are_consistent_and_tracking_is_deterministic(pipe_scene):
         assert abs(np.linalg.norm(kf.t) - 1.0) < 1e-9
 
 
-def test_a_frame_with_nothing_to_track_yields_no_keyframe(pipe_scene):
-    tracker = FeatureTracker(pipe_scene.camera)
+@pytest.mark.parametrize("tracker", [FeatureTracker, FlowTracker])
+def test_a_frame_with_nothing_to_track_yields_no_keyframe(pipe_scene, tracker):
+    tracker = tracker(pipe_scene.camera)
     blank = Frame(0, 0.0, np.full((240, 320), 255.0, np.float32))
     assert tracker.process(blank) == [] and tracker.finish() == []

@@ -309,10 +309,21 @@ class FeatureTracker:
         return self._emit(features, keyframe)
 
 
+def make_tracker(camera: CameraModel, settings: FrontendSettings | None = None, seed: int = 0,
+                 usable: np.ndarray | None = None) -> FeatureTracker:
+    """The tracker `settings.tracking` names: flow (flow_tracker.py) or descriptors (this module's)."""
+    settings = settings or FrontendSettings()
+    if settings.tracking == "flow":
+        from pipemap.frontend.flow_tracker import FlowTracker  # it builds on this module's FeatureTracker
+
+        return FlowTracker(camera, settings, seed, usable)
+    return FeatureTracker(camera, settings, seed, usable)
+
+
 def track_frames(frames: Iterable[Frame], camera: CameraModel, settings: FrontendSettings | None = None,
                  seed: int = 0) -> Iterator[Keyframe]:
     """Stream keyframes from a stream of frames."""
-    ft = FeatureTracker(camera, settings, seed)
+    ft = make_tracker(camera, settings, seed)
     for frame in frames:
         yield from ft.process(frame)
     yield from ft.finish()
@@ -351,7 +362,7 @@ def run_tracking(dataset_path, out_dir, settings=None, progress=None) -> Trackin
     dataset = load_dataset(dataset_path)
     total = len(dataset)
     with result_folder(Path(out_dir)) as tmp:
-        ft = FeatureTracker(dataset.camera, settings.frontend, settings.seed)
+        ft = make_tracker(dataset.camera, settings.frontend, settings.seed)
         start = time.perf_counter()
         done = 0
         for frame in dataset.frames():
