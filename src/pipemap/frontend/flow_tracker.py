@@ -38,7 +38,6 @@ from pipemap.dataset import Frame
 from pipemap.frontend.angular import pixel_scale
 from pipemap.frontend.anchor import Anchors, anchor_templates, refine_to_anchors
 from pipemap.frontend.flow import local_quadratic_motion
-from pipemap.frontend.harris import detect_corners, flatten_lighting
 from pipemap.frontend.keyframes import needs_keyframe
 from pipemap.frontend.relpose import essential_from_pose, estimate_relative_pose, refine_pose, sampson_angle
 from pipemap.frontend.tracker import FeatureTracker, _Features
@@ -188,23 +187,14 @@ class FlowTracker(FeatureTracker):
 
     # -- keyframes ------------------------------------------------------------------------
 
-    def _corners(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _keyframe_corners(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(the flattened image, Harris corners, their bearings) of a frame that becomes a keyframe."""
-        s = self.s
-        image = np.ascontiguousarray(frame.image, dtype=np.float32)
-        if s.smooth_sigma_px > 0:
-            image = cv2.GaussianBlur(image, (0, 0), s.smooth_sigma_px)
-        mask = self.mask
-        if s.flatten_lighting:
-            image, lit = flatten_lighting(image, s.lighting_sigma_px, s.dark_level, contrast_limit=s.contrast_limit)
-            mask = mask & lit
-        points, _ = detect_corners(image, mask, tuple(s.regions), s.corners_per_region, s.harris_k, s.harris_block_px,
-                                   min_distance_px=s.min_distance_px, quality=s.harris_quality)
+        image, points = self.corners(frame)
         bearings, _ = self.camera.unproject(points)
         return image, points, bearings.reshape(-1, 3)
 
     def _start_flow(self, data: FlowFrame) -> Keyframe | None:
-        image, points, bearings = self._corners(data.frame)
+        image, points, bearings = self._keyframe_corners(data.frame)
         if len(points) < self.s.min_inliers:
             return None
         keyframe = self._start(_Features(data.index, data.frame.timestamp, image, None, points, bearings, None))
@@ -221,7 +211,7 @@ class FlowTracker(FeatureTracker):
         """The followed frame as the next keyframe; None when its pose cannot be found."""
         s = self.s
         kf = self._kf_features
-        image, corners, corner_bearings = self._corners(m.data.frame)
+        image, corners, corner_bearings = self._keyframe_corners(m.data.frame)
         rows, positions = m.rows, m.positions
         carried = None
         if s.anchor_refine:  # the anchor match first: RANSAC then sees each feature where its first patch is

@@ -103,7 +103,8 @@ class FeatureTracker:
 
     # -- per frame ------------------------------------------------------------------------
 
-    def extract(self, frame: Frame) -> _Features:
+    def corners(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """The frame as matching sees it (blurred as set, lighting flattened) and its Harris corners (N, 2)."""
         s = self.s
         image = np.ascontiguousarray(frame.image, dtype=np.float32)
         if s.smooth_sigma_px > 0:
@@ -114,6 +115,11 @@ class FeatureTracker:
             mask = mask & lit
         points, _ = detect_corners(image, mask, tuple(s.regions), s.corners_per_region, s.harris_k, s.harris_block_px,
                                    min_distance_px=s.min_distance_px, quality=s.harris_quality)
+        return image, points
+
+    def extract(self, frame: Frame) -> _Features:
+        s = self.s
+        image, points = self.corners(frame)
         smoothed = smooth_for_templates(image, s.template_size, s.template_window)
         desc, usable = describe(smoothed, points, s.template_size, s.template_window)
         points, desc = points[usable], desc[usable]

@@ -24,7 +24,7 @@ class Keyframe:
     bearings: np.ndarray  # (N, 3) float32 unit bearings from the dataset's camera model
     track_ids: np.ndarray  # (N,) int64, unique within the keyframe
     inliers: np.ndarray  # (N,) bool: continues a track of the previous keyframe, consistent with R, t
-    guided: np.ndarray  # (N,) bool: found by epipolar-guided ZNCC rather than by descriptor matching
+    guided: np.ndarray  # (N,) bool: found by epipolar-guided ZNCC rather than by descriptor matching (descriptors)
     R: np.ndarray  # (3, 3)
     t: np.ndarray  # (3,)
     pose_valid: bool

@@ -10,7 +10,8 @@ keyframe and 0 otherwise; `label` is `straight` for every image until image clas
 
 `track_id` is stable across keyframes, `keyframe` the keyframe number (0, 1, ...), `index` the
 image index, `u,v` the pixel (origin at the centre of the top-left pixel), `guided` 1 when the
-observation was found by epipolar-guided ZNCC rather than descriptor matching. Rows are sorted
+observation was found by epipolar-guided ZNCC rather than descriptor matching (always 0 with
+`frontend.tracking: flow`, where Lucas-Kanade follows every feature). Rows are sorted
 by keyframe. An observation whose `track_id` also occurs in the previous keyframe is an inlier
 of that keyframe pair's relative pose.
 """
