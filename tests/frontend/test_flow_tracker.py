@@ -56,3 +56,27 @@ def test_a_blank_frame_is_not_followed_and_the_next_is_followed_from_the_keyfram
     assert tracker.process(Frame(3, 0.3, _shifted(image, 2.0, 1.0))) == [] and tracker._lost == 0
     assert np.allclose(np.median(tracker._positions - tracker._kf_features.keypoints[tracker._rows], axis=0),
                        [1.0, 0.5], atol=0.05)
+
+
+def test_a_stall_is_bridged_by_each_features_speed():
+    """After a stalled link the next frame has moved on several frames' worth. Searched from where each feature
+    was, a one-level pyramid (15 px window) loses the 36 px jump; searched from where its speed takes it, it is
+    found."""
+    from pipemap.config import FrontendSettings
+
+    camera = fisheye_camera(640, 480)
+    tracker = FlowTracker(camera, FrontendSettings(flow_levels=1, keyframe_min_flow_px=100.0))
+    image = _texture(640, 480)
+    step = np.array([4.0, 2.0])  # px a frame, 0.1 s apart
+    [keyframe] = tracker.process(Frame(0, 0.0, image))
+    for i in (1, 2):
+        tracker.process(Frame(i, 0.1 * i, _shifted(image, *(i * step))))
+    stalled = tracker.extract(Frame(8, 0.8, _shifted(image, *(8 * step))))  # six frames lost
+    followed = tracker._follow(stalled)
+    moved = followed.positions - keyframe.keypoints[followed.rows]
+    assert np.allclose(np.median(moved, axis=0), 8 * step, atol=0.05)
+    assert np.allclose(np.median(followed.velocities, axis=0), 10 * step, atol=0.5)
+    tracker._velocities[:] = 0.0  # at rest, the same frame is not found
+    lost = tracker._follow(stalled)
+    assert lost is None or np.median(np.linalg.norm(lost.positions - keyframe.keypoints[lost.rows] - 8 * step,
+                                                    axis=1)) > 1.0

@@ -38,6 +38,7 @@ from pipemap.dataset import Frame
 from pipemap.frontend.angular import pixel_scale
 from pipemap.frontend.anchor import Anchors, anchor_templates, refine_to_anchors
 from pipemap.frontend.flow import local_quadratic_motion
+from pipemap.frontend.guided import predict_positions
 from pipemap.frontend.keyframes import needs_keyframe
 from pipemap.frontend.relpose import essential_from_pose, estimate_relative_pose, refine_pose, sampson_angle
 from pipemap.frontend.tracker import FeatureTracker, _Features
@@ -69,6 +70,7 @@ class _Followed:
     data: FlowFrame
     rows: np.ndarray
     positions: np.ndarray  # (n, 2) float32
+    velocities: np.ndarray  # (n, 2) px/s, from the frame they were followed from
     median_flow: float
     tracked_fraction: float
 
@@ -85,6 +87,8 @@ class FlowTracker(FeatureTracker):
         self._last: FlowFrame | None = None  # the last frame the features were followed into
         self._rows = np.zeros(0, np.intp)  # keyframe rows still followed
         self._positions = np.zeros((0, 2), np.float32)  # and where they are in self._last
+        self._velocities = np.zeros((0, 2))  # and how fast they moved there (px/s)
+        self._kf_velocities = np.zeros((0, 2))  # the keyframe features' own
 
     def extract(self, frame: Frame) -> FlowFrame:
         s = self.s
@@ -110,7 +114,8 @@ class FlowTracker(FeatureTracker):
             if followed is not None:
                 if not needs_keyframe(followed.median_flow, followed.tracked_fraction, self.s.keyframe_min_flow_px,
                                       self.s.keyframe_min_tracked):
-                    self._last, self._rows, self._positions = data, followed.rows, followed.positions
+                    self._last, self._rows = data, followed.rows
+                    self._positions, self._velocities = followed.positions, followed.velocities
                     self._candidate = followed
                     self._lost = 0
                     return out
@@ -142,29 +147,37 @@ class FlowTracker(FeatureTracker):
     def _follow(self, data: FlowFrame) -> _Followed | None:
         """The features followed into `data` from the last frame, or else from the keyframe; None when fewer
         than min_inliers are."""
-        followed = self._follow_from(self._last, self._rows, self._positions, data)
+        followed = self._follow_from(self._last, self._rows, self._positions, self._velocities, data)
         if followed is None and self._last is not self._kf_data:  # the last frame may have been the bad one
             kf = self._kf_features
-            followed = self._follow_from(self._kf_data, np.arange(len(kf.keypoints)), kf.keypoints, data)
+            followed = self._follow_from(self._kf_data, np.arange(len(kf.keypoints)), kf.keypoints,
+                                         self._kf_velocities, data)
         return followed
 
-    def _follow_from(self, last: FlowFrame, rows: np.ndarray, positions: np.ndarray,
+    def _follow_from(self, last: FlowFrame, rows: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
                      data: FlowFrame) -> _Followed | None:
-        """The features `rows` at `positions` in `last` followed into `data`: those left on the usable image where
-        their patches fit. None when fewer than min_inliers are, or when a sample of them followed back does not
-        come back (a blank, saturated or torn frame, on which Lucas-Kanade still reports every feature found)."""
+        """The features `rows` at `positions` in `last`, moving at `velocities`, followed into `data`: those left
+        on the usable image where their patches fit. None when fewer than min_inliers are, or when a sample of them
+        followed back does not come back (a blank, saturated or torn frame, on which Lucas-Kanade still reports
+        every feature found)."""
         s = self.s
         if len(rows) < s.min_inliers:
             return None
+        dt = data.frame.timestamp - last.frame.timestamp
         f = self._shrink
         # a pixel of the shrunk image is the mean of f x f, centred (f - 1) / 2 into them
         start = ((np.asarray(positions, np.float32) - (f - 1) / 2) / f).reshape(-1, 1, 2)
-        found, status = self._lucas_kanade(last, data, start)
+        # Each feature is searched where it would be had it kept its speed: after a stall or a dropped frame the
+        # image has moved on several frames' worth, beyond what Lucas-Kanade finds from where it was.
+        ahead = (velocities * (dt / f)).astype(np.float32).reshape(-1, 1, 2)
+        found, status = self._lucas_kanade(last, data, start, start + ahead)
         sample = slice(None, None, max(1, len(start) // _BACK_SAMPLE))
-        back, back_ok = self._lucas_kanade(data, last, np.ascontiguousarray(found[sample]))
+        back, back_ok = self._lucas_kanade(data, last, np.ascontiguousarray(found[sample]),
+                                           np.ascontiguousarray(found[sample] - ahead[sample]))
         back_error = np.linalg.norm(back - start[sample], axis=2).ravel()[back_ok & status[sample]]
         if not len(back_error) or np.median(back_error) > _BACK_MAX_PX:
             return None
+        moved = (found - start).reshape(-1, 2) * (f / max(dt, 1e-6))
         found = (found.reshape(-1, 2) * f + (f - 1) / 2).astype(np.float32)
         ok = status & np.all(np.isfinite(found), axis=1)
         ui = np.round(np.where(ok, found[:, 0], 0)).astype(int).clip(0, self.mask.shape[1] - 1)
@@ -175,14 +188,17 @@ class FlowTracker(FeatureTracker):
             return None
         flow = float(np.median(np.linalg.norm(found - self._kf_features.keypoints[rows], axis=1)))
         self._reference = max(self._reference, len(rows))
-        return _Followed(data, rows, found, flow, len(rows) / self._reference)
+        return _Followed(data, rows, found, moved[ok], flow, len(rows) / self._reference)
 
-    def _lucas_kanade(self, a: FlowFrame, b: FlowFrame, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Points (n, 1, 2) of a's shrunk image found in b's: (positions (n, 1, 2), found (n,))."""
+    def _lucas_kanade(self, a: FlowFrame, b: FlowFrame, points: np.ndarray,
+                      guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points (n, 1, 2) of a's shrunk image found in b's, searched from `guess` (n, 1, 2):
+        (positions (n, 1, 2), found (n,))."""
         s = self.s
-        found, status, _ = cv2.calcOpticalFlowPyrLK(a.grey, b.grey, points, None,
+        found, status, _ = cv2.calcOpticalFlowPyrLK(a.grey, b.grey, points, guess.copy(),
                                                     winSize=(s.flow_window_px, s.flow_window_px),
-                                                    maxLevel=s.flow_levels, criteria=_LK_CRITERIA)
+                                                    maxLevel=s.flow_levels, criteria=_LK_CRITERIA,
+                                                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
         return found, status.reshape(-1).astype(bool)
 
     # -- keyframes ------------------------------------------------------------------------
@@ -201,22 +217,25 @@ class FlowTracker(FeatureTracker):
         self._restart(data, keyframe)
         return keyframe
 
-    def _restart(self, data: FlowFrame, keyframe: Keyframe) -> None:
-        """Frames from here on are followed from the new keyframe."""
+    def _restart(self, data: FlowFrame, keyframe: Keyframe, velocities: np.ndarray | None = None) -> None:
+        """Frames from here on are followed from the new keyframe, its features moving at `velocities` (px/s;
+        None: at rest)."""
+        n = len(keyframe.keypoints)
         self._kf_data = self._last = data
-        self._rows = np.arange(len(keyframe.keypoints))
+        self._rows = np.arange(n)
         self._positions = np.asarray(keyframe.keypoints, np.float32)
+        self._kf_velocities = self._velocities = np.zeros((n, 2)) if velocities is None else velocities
 
     def _promote_flow(self, m: _Followed) -> Keyframe | None:
         """The followed frame as the next keyframe; None when its pose cannot be found."""
         s = self.s
         kf = self._kf_features
         image, corners, corner_bearings = self._keyframe_corners(m.data.frame)
-        rows, positions = m.rows, m.positions
+        rows, positions, velocities = m.rows, m.positions, m.velocities
         carried = None
         if s.anchor_refine:  # the anchor match first: RANSAC then sees each feature where its first patch is
             ok, positions, carried = self._anchor_flow(kf, image, rows, positions)
-            rows, positions, carried = rows[ok], positions[ok], carried.take(ok)
+            rows, positions, velocities, carried = rows[ok], positions[ok], velocities[ok], carried.take(ok)
         bearings, _ = self.camera.unproject(positions)
         bearings = bearings.reshape(-1, 3)
         rng = np.random.default_rng([self.seed, kf.index, m.data.index])
@@ -228,6 +247,7 @@ class FlowTracker(FeatureTracker):
         consistent = sampson_angle(essential_from_pose(R, t), kf.bearings[rows], bearings)
         consistent = (consistent < s.track_threshold_factor * self.threshold) & pose.inliers
         rows, positions, bearings = rows[consistent], positions[consistent], bearings[consistent]
+        velocities = velocities[consistent]
         # Corners of the frame where no track continues start new ones.
         if len(positions) and len(corners) and s.duplicate_px > 0:
             d, _ = cKDTree(positions).query(corners, k=1)
@@ -247,7 +267,9 @@ class FlowTracker(FeatureTracker):
         keyframe = Keyframe(len(self.keyframes), frame.index, frame.timestamp, keypoints, all_bearings, track_ids,
                             inliers, np.zeros(len(keypoints), bool), R, t, True)
         self._emit(features, keyframe)
-        self._restart(m.data, keyframe)
+        # new corners move as the continued tracks nearest them do
+        self._restart(m.data, keyframe, np.concatenate([velocities, predict_positions(
+            corners, positions, positions + velocities, s.guided_neighbours) - corners]))
         return keyframe
 
     def _anchor_flow(self, kf: _Features, image: np.ndarray, rows: np.ndarray, positions: np.ndarray):
