@@ -88,7 +88,6 @@ class FlowTracker(FeatureTracker):
         self._rows = np.zeros(0, np.intp)  # keyframe rows still followed
         self._positions = np.zeros((0, 2), np.float32)  # and where they are in self._last
         self._velocities = np.zeros((0, 2))  # and how fast they moved there (px/s)
-        self._kf_velocities = np.zeros((0, 2))  # the keyframe features' own
 
     def extract(self, frame: Frame) -> FlowFrame:
         s = self.s
@@ -145,14 +144,20 @@ class FlowTracker(FeatureTracker):
         return [] if keyframe is None else [keyframe]
 
     def _follow(self, data: FlowFrame) -> _Followed | None:
-        """The features followed into `data` from the last frame, or else from the keyframe; None when fewer
-        than min_inliers are."""
-        followed = self._follow_from(self._last, self._rows, self._positions, self._velocities, data)
-        if followed is None and self._last is not self._kf_data:  # the last frame may have been the bad one
+        """The features followed into `data` from the last frame, searched where their speed takes them or else
+        where they were (the robot stopped or turned back), or else from the keyframe; None when fewer than
+        min_inliers are."""
+        at_rest = np.zeros_like(self._velocities)
+        tries = [(self._last, self._rows, self._positions, self._velocities),
+                 (self._last, self._rows, self._positions, at_rest)]
+        if self._last is not self._kf_data:  # the last frame may have been the bad one
             kf = self._kf_features
-            followed = self._follow_from(self._kf_data, np.arange(len(kf.keypoints)), kf.keypoints,
-                                         self._kf_velocities, data)
-        return followed
+            tries.append((self._kf_data, np.arange(len(kf.keypoints)), kf.keypoints, np.zeros((len(kf.keypoints), 2))))
+        for last, rows, positions, velocities in tries:
+            followed = self._follow_from(last, rows, positions, velocities, data)
+            if followed is not None:
+                return followed
+        return None
 
     def _follow_from(self, last: FlowFrame, rows: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
                      data: FlowFrame) -> _Followed | None:
@@ -224,7 +229,7 @@ class FlowTracker(FeatureTracker):
         self._kf_data = self._last = data
         self._rows = np.arange(n)
         self._positions = np.asarray(keyframe.keypoints, np.float32)
-        self._kf_velocities = self._velocities = np.zeros((n, 2)) if velocities is None else velocities
+        self._velocities = np.zeros((n, 2)) if velocities is None else velocities
 
     def _promote_flow(self, m: _Followed) -> Keyframe | None:
         """The followed frame as the next keyframe; None when its pose cannot be found."""
