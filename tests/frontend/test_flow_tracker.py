@@ -80,3 +80,21 @@ def test_a_stall_is_bridged_by_each_features_speed():
     lost = tracker._follow(stalled)
     assert lost is None or np.median(np.linalg.norm(lost.positions - keyframe.keypoints[lost.rows] - 8 * step,
                                                     axis=1)) > 1.0
+
+
+def test_a_robot_turning_back_is_followed_from_rest():
+    """Where the robot turns back, the guess from each feature's speed lies two steps off; the search from where
+    the features were finds them (a one-level pyramid: neither the guess nor the keyframe, 20 px away, would)."""
+    from pipemap.config import FrontendSettings
+
+    camera = fisheye_camera(640, 480)
+    tracker = FlowTracker(camera, FrontendSettings(flow_levels=1, keyframe_min_flow_px=100.0))
+    image = _texture(640, 480)
+    step = np.array([6.0, 3.0])
+    [keyframe] = tracker.process(Frame(0, 0.0, image))
+    for i in (1, 2, 3, 4):
+        assert tracker.process(Frame(i, 0.1 * i, _shifted(image, *(i * step)))) == []
+    back = tracker.extract(Frame(5, 0.5, _shifted(image, *(3 * step))))
+    followed = tracker._follow(back)
+    moved = followed.positions - keyframe.keypoints[followed.rows]
+    assert np.allclose(np.median(moved, axis=0), 3 * step, atol=0.05)
