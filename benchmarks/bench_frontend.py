@@ -36,13 +36,13 @@ from pipemap.sim.simulate import wall_caster
 DEFAULT_FRAMES = {"fisheye-straight": 120, "paper-loop": 260}
 
 
-def in_memory_rate(dataset_path: Path, seed: int) -> float:
+def in_memory_rate(dataset_path: Path, settings) -> float:
     """Images per second of the tracker alone, frames decoded beforehand."""
-    from pipemap.frontend import FeatureTracker
+    from pipemap.frontend import make_tracker
 
     dataset = load_dataset(dataset_path)
     frames = list(dataset.frames())
-    tracker = FeatureTracker(dataset.camera, seed=seed)
+    tracker = make_tracker(dataset.camera, settings.frontend, settings.seed)
     start = time.perf_counter()
     for frame in frames:
         tracker.process(frame)
@@ -66,6 +66,8 @@ def main(argv=None) -> int:
                              "through its first tee)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--tracking", choices=["flow", "descriptors"], default="flow",
+                        help="frontend.tracking: Lucas-Kanade between keyframes or descriptors in every frame")
     parser.add_argument("--workdir", type=Path, default=None, help="keep rendered datasets and results here")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "frontend.json")
     args = parser.parse_args(argv)
@@ -78,7 +80,7 @@ def main(argv=None) -> int:
 
     work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_frontend-"))
     results = {"conditions": {"threads": args.threads, "cpu_count": os.cpu_count(), "load_average": os.getloadavg(),
-                              "seed": args.seed}, "runs": []}
+                              "seed": args.seed, "tracking": args.tracking}, "runs": []}
     for preset in args.presets:
         frames = args.frames or DEFAULT_FRAMES.get(preset, 120)
         for size in args.sizes:
@@ -93,11 +95,14 @@ def main(argv=None) -> int:
                 import shutil
 
                 shutil.rmtree(out)
-            result = run_tracking(data, out, Settings(seed=args.seed))
+            settings = Settings(seed=args.seed)
+            settings = settings.model_copy(update={"frontend": settings.frontend.model_copy(
+                update={"tracking": args.tracking})})
+            result = run_tracking(data, out, settings)
             figures = evaluate_tracking(out, data, wall=wall_caster(preset, w, h, frames, args.seed))
             figures.update({"preset": preset, "size": size, "frames": frames,
                             "tracking_seconds": round(result.seconds, 3),
-                            "frames_per_second_in_memory": round(in_memory_rate(data, args.seed), 2),
+                            "frames_per_second_in_memory": round(in_memory_rate(data, settings), 2),
                             "load_average_after": os.getloadavg()[0]})
             results["runs"].append(figures)
             print(json.dumps(figures), flush=True)
