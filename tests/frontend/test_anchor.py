@@ -83,6 +83,18 @@ def test_a_different_patch_is_refused_and_keeps_its_inputs():
     assert np.array_equal(pos, start) and np.array_equal(out.warps, anchors.warps)
 
 
+def test_a_warp_that_runs_away_is_refused_not_raised():
+    # Matched against an unrelated image for many iterations, warps grow without bound; the SVD of
+    # such a warp did not converge and raised (seen with anchor_iterations 30 on a junction run).
+    img = _texture(seed=3)
+    pts = _grid_points(4)
+    anchors = anchor_templates(img, pts, PATCH)
+    start = pts + 0.3
+    ok, pos, out = refine_to_anchors(_texture(seed=4), anchors, start, PATCH, iterations=60)
+    assert not ok.any()
+    assert np.array_equal(pos, start) and np.array_equal(out.warps, anchors.warps)
+
+
 def test_empty_input():
     img = _texture()
     anchors = anchor_templates(img, np.zeros((0, 2)), PATCH)

@@ -204,21 +204,26 @@ def refine_to_anchors(image: np.ndarray, anchors: Anchors, positions: np.ndarray
     squares = (g[:, :, None] * g[:, None, :]).reshape(len(g), 4)
     bend = 0.5 * np.matmul(anchors.curvature.reshape(n, 2, 4), squares.T)
     active = np.arange(n)
-    for _ in range(iterations):
-        rows = slice(None) if len(active) == n else active  # a slice takes no copy of the anchors
-        r = _warped_patches(sample, p[rows], A[rows], bend[rows], g) - anchors.templates[rows]
-        d = np.matmul(anchors.inverse_hessian[rows], np.matmul(anchors.steepest[rows], r[:, :, None]))
-        d = d[:, :, 0].astype(np.float64)
-        # W(x; p, A) <- W(x; p, A) o W(x; d)^-1, W(x; d) = x + D x + d_t
-        A_new = A[rows] @ np.linalg.inv(np.eye(2) + d[:, 2:6].reshape(-1, 2, 2))
-        p[rows] -= np.einsum("nij,nj->ni", A_new, d[:, :2])
-        A[rows] = A_new
-        active = active[np.abs(d[:, :2]).max(axis=1) >= 1e-3]
-        if not len(active):
-            break
+    with np.errstate(over="ignore", invalid="ignore"):  # a runaway warp is refused below
+        for _ in range(iterations):
+            rows = slice(None) if len(active) == n else active  # a slice takes no copy of the anchors
+            r = _warped_patches(sample, p[rows], A[rows], bend[rows], g) - anchors.templates[rows]
+            d = np.matmul(anchors.inverse_hessian[rows], np.matmul(anchors.steepest[rows], r[:, :, None]))
+            d = d[:, :, 0].astype(np.float64)
+            # W(x; p, A) <- W(x; p, A) o W(x; d)^-1, W(x; d) = x + D x + d_t
+            A_new = A[rows] @ np.linalg.inv(np.eye(2) + d[:, 2:6].reshape(-1, 2, 2))
+            p[rows] -= np.einsum("nij,nj->ni", A_new, d[:, :2])
+            A[rows] = A_new
+            active = active[np.abs(d[:, :2]).max(axis=1) >= 1e-3]
+            if not len(active):
+                break
+    # a warp that ran away (matched against what is not its patch) must not reach the SVD, which fails on it
+    finite = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(A), axis=(1, 2)) & (np.abs(A).max(axis=(1, 2)) < 1e6)
+    A = np.where(finite[:, None, None], A, np.eye(2))
+    p = np.where(finite[:, None], p, pos0)
     zncc = np.sum(_warped_patches(sample, p, A, bend, g) * anchors.templates, axis=1)
     sv = np.linalg.svd(A, compute_uv=False)
-    ok = (np.all(np.isfinite(p), axis=1) & (np.linalg.norm(p - pos0, axis=1) <= max_shift_px) & (zncc >= min_zncc)
+    ok = (finite & (np.linalg.norm(p - pos0, axis=1) <= max_shift_px) & (zncc >= min_zncc)
           & (np.linalg.det(A) > 0) & (sv[:, 0] <= max_stretch) & (sv[:, 1] >= 1.0 / max_stretch))
     warps = np.where(ok[:, None, None], A, anchors.warps).astype(np.float32)
     out = Anchors(anchors.templates, anchors.steepest, anchors.inverse_hessian, warps, anchors.curvature)
