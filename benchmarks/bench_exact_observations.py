@@ -222,6 +222,7 @@ def main() -> None:
     results = []
     for root in args.datasets:
         r = measure(Path(root), args.parts, args.set)
+        r["overrides"] = args.set
         print(f"{r['dataset']}: {r['keyframes']} keyframes, {100 * r['exact_share']:.1f} % of the observations "
               "with an exact projection; tracked error along the motion (px)")
         print("   by place in the track: " + " ".join(f"{p}: {v:+.4f}"
