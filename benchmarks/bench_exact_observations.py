@@ -15,9 +15,10 @@ network back end (`map_network`, as `pipemap run` runs it) then runs on each par
   early / late: exact plus the error of each track's second and third / fourth and later observations.
 A forward-and-reverse run reports the distance driven forward (start to the farthest keyframe) and back against the
 truth; any other the Sim(3) scale of the keyframe positions, the ATE after it and every distance between junction
-centres. It also prints the tracking's mean error along the motion by place in the track and by the direction of the
-observation from the image centre (45 degree sectors, image y pointing down), relative to each track's first
-observation. No scale alignment anywhere. Writes benchmarks/results/exact_observations.json.
+centres. It also prints the tracking's error along and across the motion by place in the track (mean and RMS),
+and its mean along the motion by the direction of the observation from the image centre (45 degree sectors, image y
+pointing down), relative to each track's first observation. No scale alignment anywhere. Writes
+benchmarks/results/exact_observations.json.
 """
 
 from __future__ import annotations
@@ -154,24 +155,36 @@ def judged(net, G: np.ndarray, network) -> dict:
             "max_abs_pct": float(np.max(np.abs(pairs))) if pairs else None}
 
 
-def along_by_place_and_sector(front, camera, exact, motions, places) -> tuple[dict, dict]:
-    """Mean tracked error along the motion (px) by place in the track and by 45 deg sector around the image's
-    centre."""
+def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
+    """The tracked error (px) along the motion and across it (the motion turned +90 deg in the image, y down: the
+    same sense of rotation about the image centre for a camera moving forward) by place in the track, as mean and
+    RMS and median absolute value, and its mean along the motion by 45 deg sector around the image's centre."""
     cam_centre = np.array([camera.width - 1, camera.height - 1]) / 2
-    e, p, ang = [], [], []
+    a_, c_, p, ang = [], [], [], []
     for kf, uv, m, q in zip(front.keyframes, exact, motions, places):
-        a = ((kf.keypoints - uv) * m).sum(axis=1)
-        ok = (q > 0) & np.isfinite(a) & (np.abs(a) < 2)
-        e.append(a[ok])
+        error = kf.keypoints - uv
+        a = (error * m).sum(axis=1)
+        c = error[:, 1] * m[:, 0] - error[:, 0] * m[:, 1]
+        ok = (q > 0) & np.isfinite(a) & (np.abs(a) < 2) & (np.abs(c) < 2)
+        a_.append(a[ok])
+        c_.append(c[ok])
         p.append(q[ok])
         d = uv[ok] - cam_centre
         ang.append(np.degrees(np.arctan2(d[:, 1], d[:, 0])))
-    e, p, ang = np.concatenate(e), np.concatenate(p), np.concatenate(ang)
-    by_place = {int(q): float(e[p == q].mean()) for q in range(1, 9) if (p == q).any()}
+    a, c, p, ang = (np.concatenate(x) for x in (a_, c_, p, ang))
+    places_ = [q for q in range(1, 9) if (p == q).any()]
     sector = np.floor((ang + 180) / 45).astype(int) % 8
-    by_sector = {f"{-180 + 45 * s:+d}..{-135 + 45 * s:+d}": float(e[sector == s].mean()) for s in range(8)
-                 if (sector == s).any()}
-    return by_place, by_sector
+    return {
+        "along_motion_px_by_place": {q: float(a[p == q].mean()) for q in places_},
+        "across_motion_px_by_place": {q: float(c[p == q].mean()) for q in places_},
+        "along_rms_px_by_place": {q: float(np.sqrt(np.mean(a[p == q] ** 2))) for q in places_},
+        "across_rms_px_by_place": {q: float(np.sqrt(np.mean(c[p == q] ** 2))) for q in places_},
+        "along_median_abs_px_by_place": {q: float(np.median(np.abs(a[p == q]))) for q in places_},
+        "across_median_abs_px_by_place": {q: float(np.median(np.abs(c[p == q]))) for q in places_},
+        "observations_by_place": {q: int((p == q).sum()) for q in places_},
+        "along_motion_px_by_sector": {f"{-180 + 45 * k:+d}..{-135 + 45 * k:+d}": float(a[sector == k].mean())
+                                      for k in range(8) if (sector == k).any()},
+    }
 
 
 def measure(root: Path, parts: list[str], overrides: list[str]) -> dict:
@@ -185,11 +198,11 @@ def measure(root: Path, parts: list[str], overrides: list[str]) -> dict:
     R, C = gt.rotations[idx], gt.positions[idx]
     exact = exact_observations(front, dataset.camera, network, R, C)
     motions, places = motion_and_place(front, exact)
-    by_place, by_sector = along_by_place_and_sector(front, dataset.camera, exact, motions, places)
+    errors = errors_by_place_and_sector(front, dataset.camera, exact, motions, places)
     tracked = list(front.keyframes)
     out = {"dataset": root.name, "keyframes": len(tracked),
            "exact_share": float(np.mean(np.concatenate([np.all(np.isfinite(u), axis=1) for u in exact]))),
-           "along_motion_px_by_place": by_place, "along_motion_px_by_sector": by_sector, "parts": {}}
+           **errors, "parts": {}}
     for part in parts:
         kfs = []
         for kf, uv, m, q in zip(tracked, exact, motions, places):
@@ -224,9 +237,12 @@ def main() -> None:
         r = measure(Path(root), args.parts, args.set)
         r["overrides"] = args.set
         print(f"{r['dataset']}: {r['keyframes']} keyframes, {100 * r['exact_share']:.1f} % of the observations "
-              "with an exact projection; tracked error along the motion (px)")
-        print("   by place in the track: " + " ".join(f"{p}: {v:+.4f}"
-                                                    for p, v in r["along_motion_px_by_place"].items()))
+              "with an exact projection; tracked error (px) by place in the track")
+        for key in ("observations", "along_motion_px", "along_rms_px", "along_median_abs_px", "across_motion_px",
+                    "across_rms_px", "across_median_abs_px"):
+            cells = (f"{p}: {v:+.4f}" if isinstance(v, float) else f"{p}: {v}" for p, v in r[f"{key}_by_place"].items())
+            print(f"   {key.replace('_px', ''):<17s}" + " ".join(cells))
+        print("   along the motion")
         print("   by sector (deg, y down): " + " ".join(f"{s}: {v:+.4f}"
                                                       for s, v in r["along_motion_px_by_sector"].items()))
         results.append(r)

@@ -71,3 +71,19 @@ def test_parts_hand_over_exact_pixels_plus_the_error_asked_for():
     for p in bench.PARTS:
         np.testing.assert_allclose(got[p][:2], expected[p], atol=1e-12, err_msg=p)
         np.testing.assert_allclose(got[p][2], tracked[2], err_msg=p)  # no exact projection: the tracked one stays
+
+
+def test_errors_by_place_split_along_and_across_the_motion():
+    # motion +u: across is the motion turned +90 deg (image y down), +v; motion +v: across is -u
+    exact = np.array([[400.0, 240.0], [420.0, 240.0], [320.0, 300.0], [320.0, 100.0]])
+    tracked = exact + [[0.1, 0.2], [0.3, -0.2], [0.4, 0.1], [9.0, 9.0]]  # the last is past the 2 px cut
+    motion = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])
+    front = SimpleNamespace(keyframes=[SimpleNamespace(keypoints=tracked)])
+    camera = SimpleNamespace(width=640, height=480)
+    got = bench.errors_by_place_and_sector(front, camera, [exact], [motion], [np.array([1, 1, 2, 1])])
+    assert got["observations_by_place"] == {1: 2, 2: 1}
+    np.testing.assert_allclose([got["along_motion_px_by_place"][1], got["along_motion_px_by_place"][2]], [0.2, 0.1])
+    np.testing.assert_allclose([got["across_motion_px_by_place"][1], got["across_motion_px_by_place"][2]], [0.0, -0.4])
+    np.testing.assert_allclose(got["along_rms_px_by_place"][1], np.sqrt((0.01 + 0.09) / 2))
+    np.testing.assert_allclose(got["across_median_abs_px_by_place"][1], 0.2)
+    np.testing.assert_allclose(got["along_motion_px_by_sector"]["+0..+45"], 0.2)  # both right of the centre
