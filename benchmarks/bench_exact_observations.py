@@ -12,13 +12,14 @@ network back end (`map_network`, as `pipemap run` runs it) then runs on each par
 - all: the tracked observations; exact: the exact projections;
 - along / across: exact plus the tracking's error along / across each track's image motion since its previous
   observation; top / bottom: exact plus the error of the observations in the upper / lower half of the image;
-  early / late: exact plus the error of each track's second and third / fourth and later observations.
+  early / late: exact plus the error of each track's second and third / fourth and later observations;
+  inner / rim: exact plus the error of the observations within / beyond 85 deg of the optical axis.
 A forward-and-reverse run reports the distance driven forward (start to the farthest keyframe) and back against the
 truth; any other the Sim(3) scale of the keyframe positions, the ATE after it and every distance between junction
-centres. It also prints the tracking's error along and across the motion by place in the track (mean and RMS),
-and its mean along the motion by the direction of the observation from the image centre (45 degree sectors, image y
-pointing down), relative to each track's first observation. No scale alignment anywhere. Writes
-benchmarks/results/exact_observations.json.
+centres. It also prints the tracking's error along and across the motion by place in the track (mean, RMS and
+median absolute value), and its mean along the motion by the direction of the observation from the image centre
+(45 degree sectors, image y pointing down) and by colatitude, relative to each track's first observation. No scale
+alignment anywhere. Writes benchmarks/results/exact_observations.json.
 """
 
 from __future__ import annotations
@@ -39,7 +40,8 @@ from pipemap.network import load_network
 from pipemap.pipeline import map_network, track_and_classify
 from pipemap.trajectory import read_tum
 
-PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late")
+PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late", "inner", "rim")
+_RIM_DEG = 85.0
 
 
 def wall_points(pieces, radius: float, origin: np.ndarray, rays: np.ndarray) -> np.ndarray:
@@ -114,13 +116,15 @@ def motion_and_place(front, exact: list[np.ndarray]) -> tuple[list[np.ndarray], 
 
 
 def part_pixels(part: str, tracked: np.ndarray, exact: np.ndarray, motion: np.ndarray, place: np.ndarray,
-                centre_v: float) -> np.ndarray:
+                centre_v: float, colatitude: np.ndarray | None = None) -> np.ndarray:
     """One keyframe's pixels for `part` (see the module docstring)."""
     error = tracked - exact
     along = (error * motion).sum(axis=1)[:, None] * motion
     keep = {"all": np.ones(len(error), bool), "exact": np.zeros(len(error), bool),
             "top": exact[:, 1] < centre_v, "bottom": exact[:, 1] >= centre_v,
             "early": (place >= 1) & (place <= 2), "late": place >= 3}
+    if colatitude is not None:  # degrees, of the exact pixels
+        keep.update(inner=colatitude < _RIM_DEG, rim=colatitude >= _RIM_DEG)
     if part == "along":
         added = along
     elif part == "across":
@@ -155,12 +159,17 @@ def judged(net, G: np.ndarray, network) -> dict:
             "max_abs_pct": float(np.max(np.abs(pairs))) if pairs else None}
 
 
+_COLATITUDES = (0, 30, 45, 60, 70, 80, 85, 90, 180)  # deg, bands of the mean error along the motion by colatitude
+_PLACE_GROUPS = ((1, 2), (3, 4), (5, 6), (7, 8))
+
+
 def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
     """The tracked error (px) along the motion and across it (the motion turned +90 deg in the image, y down: the
-    same sense of rotation about the image centre for a camera moving forward) by place in the track, as mean and
-    RMS and median absolute value, and its mean along the motion by 45 deg sector around the image's centre."""
+    same sense of rotation about the image centre for a camera moving forward) by place in the track, as mean,
+    RMS and median absolute value; its mean along the motion by 45 deg sector around the image's centre, and by
+    band of colatitude (the angle from the optical axis) for places 1-2, 3-4, 5-6 and 7-8."""
     cam_centre = np.array([camera.width - 1, camera.height - 1]) / 2
-    a_, c_, p, ang = [], [], [], []
+    a_, c_, p, ang, col = [], [], [], [], []
     for kf, uv, m, q in zip(front.keyframes, exact, motions, places):
         error = kf.keypoints - uv
         a = (error * m).sum(axis=1)
@@ -171,9 +180,18 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
         p.append(q[ok])
         d = uv[ok] - cam_centre
         ang.append(np.degrees(np.arctan2(d[:, 1], d[:, 0])))
-    a, c, p, ang = (np.concatenate(x) for x in (a_, c_, p, ang))
+        bearings, _ = camera.unproject(uv[ok])
+        col.append(np.degrees(np.arccos(np.clip(bearings.reshape(-1, 3)[:, 2], -1.0, 1.0))))
+    a, c, p, ang, col = (np.concatenate(x) for x in (a_, c_, p, ang, col))
     places_ = [q for q in range(1, 9) if (p == q).any()]
     sector = np.floor((ang + 180) / 45).astype(int) % 8
+    by_colatitude = {}
+    for lo, hi in zip(_COLATITUDES[:-1], _COLATITUDES[1:]):
+        band = (col >= lo) & (col < hi)
+        cells = {f"{g0}-{g1}": (float(a[sel].mean()), int(sel.sum()))
+                 for g0, g1 in _PLACE_GROUPS if (sel := band & (p >= g0) & (p <= g1)).any()}
+        if cells:
+            by_colatitude[f"{lo}..{hi}"] = cells
     return {
         "along_motion_px_by_place": {q: float(a[p == q].mean()) for q in places_},
         "across_motion_px_by_place": {q: float(c[p == q].mean()) for q in places_},
@@ -184,6 +202,7 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
         "observations_by_place": {q: int((p == q).sum()) for q in places_},
         "along_motion_px_by_sector": {f"{-180 + 45 * k:+d}..{-135 + 45 * k:+d}": float(a[sector == k].mean())
                                       for k in range(8) if (sector == k).any()},
+        "along_motion_px_by_colatitude": by_colatitude,  # band -> place group -> (mean, observations)
     }
 
 
@@ -206,7 +225,9 @@ def measure(root: Path, parts: list[str], overrides: list[str]) -> dict:
     for part in parts:
         kfs = []
         for kf, uv, m, q in zip(tracked, exact, motions, places):
-            px = part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2)
+            bearings, _ = dataset.camera.unproject(np.nan_to_num(uv))
+            colatitude = np.degrees(np.arccos(np.clip(bearings.reshape(-1, 3)[:, 2], -1.0, 1.0)))
+            px = part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2, colatitude)
             bearings, _ = dataset.camera.unproject(px)
             kfs.append(replace(kf, keypoints=px, bearings=bearings.reshape(-1, 3)))
         front.keyframes[:] = kfs
@@ -242,9 +263,12 @@ def main() -> None:
                     "across_rms_px", "across_median_abs_px"):
             cells = (f"{p}: {v:+.4f}" if isinstance(v, float) else f"{p}: {v}" for p, v in r[f"{key}_by_place"].items())
             print(f"   {key.replace('_px', ''):<17s}" + " ".join(cells))
-        print("   along the motion")
-        print("   by sector (deg, y down): " + " ".join(f"{s}: {v:+.4f}"
-                                                      for s, v in r["along_motion_px_by_sector"].items()))
+        print("   along the motion by sector (deg, y down): " + " ".join(
+            f"{s}: {v:+.4f}" for s, v in r["along_motion_px_by_sector"].items()))
+        print("   along the motion by colatitude (deg), places " + ", ".join(f"{a}-{b}" for a, b in _PLACE_GROUPS)
+              + ": mean (observations)")
+        for band, cells in r["along_motion_px_by_colatitude"].items():
+            print(f"     {band:>8s}: " + "  ".join(f"{g} {v:+.4f} ({n})" for g, (v, n) in cells.items()))
         results.append(r)
     summary = {"benchmark": "exact_observations", "machine": platform.platform(), "cpus": os.cpu_count(),
                "results": results}

@@ -11,6 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from pipemap.sim.presets import fisheye_camera
+
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_exact_observations.py"
 _SPEC = importlib.util.spec_from_file_location("bench_exact_observations", _PATH)
 bench = importlib.util.module_from_spec(_SPEC)
@@ -64,26 +66,35 @@ def test_parts_hand_over_exact_pixels_plus_the_error_asked_for():
     tracked = np.array([[100.3, 100.4], [299.0, 401.0], [50.0, 60.0]])
     motion = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
     place = np.array([1, 4, 0])
-    got = {p: bench.part_pixels(p, tracked, exact, motion, place, 240.0) for p in bench.PARTS}
+    got = {p: bench.part_pixels(p, tracked, exact, motion, place, 240.0, np.array([40.0, 87.0, 10.0]))
+           for p in bench.PARTS}
     expected = {"all": tracked[:2], "exact": exact[:2], "along": [[100.3, 100.0], [300.0, 401.0]],
                 "across": [[100.0, 100.4], [299.0, 400.0]], "top": [tracked[0], exact[1]],
-                "bottom": [exact[0], tracked[1]], "early": [tracked[0], exact[1]], "late": [exact[0], tracked[1]]}
+                "bottom": [exact[0], tracked[1]], "early": [tracked[0], exact[1]], "late": [exact[0], tracked[1]],
+                "inner": [tracked[0], exact[1]], "rim": [exact[0], tracked[1]]}
     for p in bench.PARTS:
         np.testing.assert_allclose(got[p][:2], expected[p], atol=1e-12, err_msg=p)
         np.testing.assert_allclose(got[p][2], tracked[2], err_msg=p)  # no exact projection: the tracked one stays
 
 
 def test_errors_by_place_split_along_and_across_the_motion():
-    # motion +u: across is the motion turned +90 deg (image y down), +v; motion +v: across is -u
-    exact = np.array([[400.0, 240.0], [420.0, 240.0], [320.0, 300.0], [320.0, 100.0]])
+    # motion +u: across is the motion turned +90 deg (image y down), +v; motion +v: across is -u.
+    # Colatitudes on this lens: 20, 40, 24 and 56 deg.
+    exact = np.array([[370.0, 240.0], [420.0, 240.0], [320.0, 300.0], [320.0, 100.0]])
     tracked = exact + [[0.1, 0.2], [0.3, -0.2], [0.4, 0.1], [9.0, 9.0]]  # the last is past the 2 px cut
     motion = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])
     front = SimpleNamespace(keyframes=[SimpleNamespace(keypoints=tracked)])
-    camera = SimpleNamespace(width=640, height=480)
-    got = bench.errors_by_place_and_sector(front, camera, [exact], [motion], [np.array([1, 1, 2, 1])])
-    assert got["observations_by_place"] == {1: 2, 2: 1}
-    np.testing.assert_allclose([got["along_motion_px_by_place"][1], got["along_motion_px_by_place"][2]], [0.2, 0.1])
-    np.testing.assert_allclose([got["across_motion_px_by_place"][1], got["across_motion_px_by_place"][2]], [0.0, -0.4])
+    got = bench.errors_by_place_and_sector(front, fisheye_camera(640, 480), [exact], [motion],
+                                           [np.array([1, 1, 3, 1])])
+    assert got["observations_by_place"] == {1: 2, 3: 1}
+    np.testing.assert_allclose([got["along_motion_px_by_place"][1], got["along_motion_px_by_place"][3]], [0.2, 0.1])
+    np.testing.assert_allclose([got["across_motion_px_by_place"][1], got["across_motion_px_by_place"][3]], [0.0, -0.4])
     np.testing.assert_allclose(got["along_rms_px_by_place"][1], np.sqrt((0.01 + 0.09) / 2))
     np.testing.assert_allclose(got["across_median_abs_px_by_place"][1], 0.2)
     np.testing.assert_allclose(got["along_motion_px_by_sector"]["+0..+45"], 0.2)  # both right of the centre
+    by_colatitude = got["along_motion_px_by_colatitude"]
+    assert sorted(by_colatitude) == ["0..30", "30..45"]
+    assert sorted(by_colatitude["0..30"]) == ["1-2", "3-4"]
+    np.testing.assert_allclose([by_colatitude["0..30"]["1-2"][0], by_colatitude["0..30"]["3-4"][0],
+                                by_colatitude["30..45"]["1-2"][0]], [0.1, 0.1, 0.3])
+    assert [by_colatitude["0..30"]["1-2"][1], by_colatitude["30..45"]["1-2"][1]] == [1, 1]
