@@ -163,6 +163,12 @@ _COLATITUDES = (0, 30, 45, 60, 70, 80, 85, 90, 180)  # deg, bands of the mean er
 _PLACE_GROUPS = ((1, 2), (3, 4), (5, 6), (7, 8))
 
 
+def colatitude_deg(camera, pixels: np.ndarray) -> np.ndarray:
+    """Degrees from the optical axis of pixels (N, 2)."""
+    bearings, _ = camera.unproject(pixels)
+    return np.degrees(np.arccos(np.clip(bearings.reshape(-1, 3)[:, 2], -1.0, 1.0)))
+
+
 def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
     """The tracked error (px) along the motion and across it (the motion turned +90 deg in the image, y down: the
     same sense of rotation about the image centre for a camera moving forward) by place in the track, as mean,
@@ -180,8 +186,7 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
         p.append(q[ok])
         d = uv[ok] - cam_centre
         ang.append(np.degrees(np.arctan2(d[:, 1], d[:, 0])))
-        bearings, _ = camera.unproject(uv[ok])
-        col.append(np.degrees(np.arccos(np.clip(bearings.reshape(-1, 3)[:, 2], -1.0, 1.0))))
+        col.append(colatitude_deg(camera, uv[ok]))
     a, c, p, ang, col = (np.concatenate(x) for x in (a_, c_, p, ang, col))
     places_ = [q for q in range(1, 9) if (p == q).any()]
     sector = np.floor((ang + 180) / 45).astype(int) % 8
@@ -225,9 +230,8 @@ def measure(root: Path, parts: list[str], overrides: list[str]) -> dict:
     for part in parts:
         kfs = []
         for kf, uv, m, q in zip(tracked, exact, motions, places):
-            bearings, _ = dataset.camera.unproject(np.nan_to_num(uv))
-            colatitude = np.degrees(np.arccos(np.clip(bearings.reshape(-1, 3)[:, 2], -1.0, 1.0)))
-            px = part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2, colatitude)
+            px = part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2,
+                             colatitude_deg(dataset.camera, np.nan_to_num(uv)))
             bearings, _ = dataset.camera.unproject(px)
             kfs.append(replace(kf, keypoints=px, bearings=bearings.reshape(-1, 3)))
         front.keyframes[:] = kfs
