@@ -227,11 +227,11 @@ def measure(root: Path, parts: list[str], overrides: list[str]) -> dict:
     out = {"dataset": root.name, "keyframes": len(tracked),
            "exact_share": float(np.mean(np.concatenate([np.all(np.isfinite(u), axis=1) for u in exact]))),
            **errors, "parts": {}}
+    colatitudes = [colatitude_deg(dataset.camera, np.nan_to_num(uv)) for uv in exact]  # the same for every part
     for part in parts:
         kfs = []
-        for kf, uv, m, q in zip(tracked, exact, motions, places):
-            px = part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2,
-                             colatitude_deg(dataset.camera, np.nan_to_num(uv)))
+        for kf, uv, m, q, col in zip(tracked, exact, motions, places, colatitudes):
+            px = part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2, col)
             bearings, _ = dataset.camera.unproject(px)
             kfs.append(replace(kf, keypoints=px, bearings=bearings.reshape(-1, 3)))
         front.keyframes[:] = kfs
