@@ -13,13 +13,18 @@ network back end (`map_network`, as `pipemap run` runs it) then runs on each par
 - along / across: exact plus the tracking's error along / across each track's image motion since its previous
   observation; top / bottom: exact plus the error of the observations in the upper / lower half of the image;
   early / late: exact plus the error of each track's second and third / fourth and later observations;
-  inner / rim: exact plus the error of the observations within / beyond 85 deg of the optical axis.
+  inner / rim: exact plus the error of the observations within / beyond 85 deg of the optical axis;
+  noise: exact plus independent Gaussian noise of --noise-px (seeded);
+  debiased / debiased-sector / debiased-colatitude: the tracked observations less the mean error along the motion
+  of their place in the track (and 45 deg sector about the image centre, or band of colatitude), measured over the
+  run: what a bias model per track age would gain at best.
 A forward-and-reverse run reports the distance driven forward (start to the farthest keyframe) and back against the
 truth; any other the Sim(3) scale of the keyframe positions, the ATE after it and every distance between junction
 centres. It also prints the tracking's error along and across the motion by place in the track (mean, RMS and
 median absolute value), and its mean along the motion by the direction of the observation from the image centre
-(45 degree sectors, image y pointing down) and by colatitude, relative to each track's first observation. No scale
-alignment anywhere. Writes benchmarks/results/exact_observations.json.
+(45 degree sectors, image y pointing down), by colatitude and by the keyframe's true turn from the one before,
+relative to each track's first observation. No scale alignment anywhere. Writes
+benchmarks/results/exact_observations.json.
 """
 
 from __future__ import annotations
@@ -40,7 +45,8 @@ from pipemap.network import load_network
 from pipemap.pipeline import map_network, track_and_classify
 from pipemap.trajectory import read_tum
 
-PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late", "inner", "rim")
+PIXEL_PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late", "inner", "rim")
+PARTS = PIXEL_PARTS + ("debiased", "debiased-sector", "debiased-colatitude", "noise")
 _RIM_DEG = 85.0
 
 
@@ -135,6 +141,61 @@ def part_pixels(part: str, tracked: np.ndarray, exact: np.ndarray, motion: np.nd
     return np.where(np.all(np.isfinite(exact), axis=1)[:, None], out, tracked)
 
 
+_TURNS = (0.0, 0.5, 2.0, 4.0, 6.0, 8.0, 180.0)  # deg, bands of a keyframe's true rotation from the one before
+
+
+def errors_by_turn(front, exact, motions, places, R: np.ndarray) -> dict:
+    """The tracked error's mean along the motion by place in the track (1-6), for keyframes grouped by their true
+    rotation from the keyframe before (deg): a turn through a junction against the straight runs."""
+    cos = (np.einsum("kij,kij->k", R[:-1], R[1:]) - 1.0) / 2.0  # trace(R_{k-1}^T R_k) = sum of elementwise products
+    turn = np.concatenate([[0.0], np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))])
+    out = {}
+    for lo, hi in zip(_TURNS[:-1], _TURNS[1:]):
+        ks = np.flatnonzero((turn >= lo) & (turn < hi))
+        if not len(ks):
+            continue
+        a = np.concatenate([((front.keyframes[k].keypoints - exact[k]) * motions[k]).sum(axis=1) for k in ks])
+        p = np.concatenate([places[k] for k in ks])
+        ok = (p > 0) & np.isfinite(a) & (np.abs(a) < 2)
+        cells = {q: (float(a[sel].mean()), int(sel.sum())) for q in range(1, 7) if (sel := ok & (p == q)).any()}
+        out[f"{lo:g}..{hi:g}"] = {"keyframes": len(ks), **cells}
+    return out
+
+
+def noisy(keyframes, exact: list[np.ndarray], sigma_px: float, rng: np.random.Generator) -> list[np.ndarray]:
+    """Per keyframe: the exact pixels plus independent Gaussian noise of `sigma_px`, the tracked ones where there
+    is no exact projection."""
+    return [np.where(np.isfinite(uv), uv + rng.normal(0.0, sigma_px, uv.shape), kf.keypoints)
+            for kf, uv in zip(keyframes, exact)]
+
+
+def mean_lag(front, camera, exact, motions, places, by: str) -> list[np.ndarray]:
+    """Per keyframe: (N, 2) the mean tracked error along the motion of the observation's cell (its place in the
+    track, 1..8 and 9 for later ones, and by "sector" its 45 deg sector about the image centre or by
+    "colatitude" its band of colatitude) times its motion: what a bias model per track age (and sector or
+    colatitude) would take out at best."""
+    centre = np.array([camera.width - 1, camera.height - 1]) / 2
+
+    def cells(uv, q):
+        place = np.minimum(q, 9)
+        if by == "sector":
+            d = uv - centre
+            return place * 8 + np.floor((np.degrees(np.arctan2(d[:, 1], d[:, 0])) + 180) / 45).astype(int) % 8
+        if by == "colatitude":
+            return place * 8 + np.clip(np.searchsorted(_COLATITUDES, colatitude_deg(camera, uv)) - 1, 0, 7)
+        return place
+    total, count = np.zeros(80), np.zeros(80)
+    for kf, uv, m, q in zip(front.keyframes, exact, motions, places):
+        a = ((kf.keypoints - uv) * m).sum(axis=1)
+        ok = (q > 0) & np.isfinite(a) & (np.abs(a) < 2)
+        c = cells(np.nan_to_num(uv), q)[ok]
+        np.add.at(total, c, a[ok])
+        np.add.at(count, c, 1)
+    mean = np.where(count > 0, total / np.maximum(count, 1), 0.0)
+    return [np.where((q > 0)[:, None], mean[cells(np.nan_to_num(uv), q)][:, None] * m, 0.0)
+            for uv, m, q in zip(exact, motions, places)]
+
+
 def judged(net, G: np.ndarray, network) -> dict:
     """Forward / reverse distance (a run that turns back) or Sim(3) scale, ATE and junction distances."""
     P = net.map.poses[:, :3, 3]
@@ -211,7 +272,7 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
     }
 
 
-def measure(root: Path, parts: list[str], overrides: list[str]) -> dict:
+def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float = 0.3) -> dict:
     dataset = load_dataset(root)
     settings = load_settings(None, overrides)
     network = load_network(root / "ground_truth" / "network.yaml")
@@ -223,6 +284,7 @@ def measure(root: Path, parts: list[str], overrides: list[str]) -> dict:
     exact = exact_observations(front, dataset.camera, network, R, C)
     motions, places = motion_and_place(front, exact)
     errors = errors_by_place_and_sector(front, dataset.camera, exact, motions, places)
+    errors["along_motion_px_by_turn"] = errors_by_turn(front, exact, motions, places, R)
     tracked = list(front.keyframes)
     out = {"dataset": root.name, "keyframes": len(tracked),
            "exact_share": float(np.mean(np.concatenate([np.all(np.isfinite(u), axis=1) for u in exact]))),
@@ -230,8 +292,15 @@ def measure(root: Path, parts: list[str], overrides: list[str]) -> dict:
     colatitudes = [colatitude_deg(dataset.camera, np.nan_to_num(uv)) for uv in exact]  # the same for every part
     for part in parts:
         kfs = []
-        for kf, uv, m, q, col in zip(tracked, exact, motions, places, colatitudes):
-            px = part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2, col)
+        if part.startswith("debiased"):
+            lags = mean_lag(front, dataset.camera, exact, motions, places, part.partition("-")[2])
+            pixels = [kf.keypoints - lag for kf, lag in zip(tracked, lags)]
+        elif part == "noise":
+            pixels = noisy(tracked, exact, noise_px, np.random.default_rng(0))
+        else:
+            pixels = [part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2, col)
+                      for kf, uv, m, q, col in zip(tracked, exact, motions, places, colatitudes)]
+        for kf, px in zip(tracked, pixels):
             bearings, _ = dataset.camera.unproject(px)
             kfs.append(replace(kf, keypoints=px, bearings=bearings.reshape(-1, 3)))
         front.keyframes[:] = kfs
@@ -254,12 +323,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("datasets", nargs="+")
     ap.add_argument("--parts", nargs="+", default=["all", "exact", "along", "across"], choices=PARTS)
+    ap.add_argument("--noise-px", type=float, default=0.3, help="sigma of the noise part's Gaussian noise (px)")
     ap.add_argument("--set", action="append", default=[], help="settings override section.key=value (repeatable)")
     ap.add_argument("--json-out", default=str(Path(__file__).parent / "results" / "exact_observations.json"))
     args = ap.parse_args()
     results = []
     for root in args.datasets:
-        r = measure(Path(root), args.parts, args.set)
+        r = measure(Path(root), args.parts, args.set, args.noise_px)
         r["overrides"] = args.set
         print(f"{r['dataset']}: {r['keyframes']} keyframes, {100 * r['exact_share']:.1f} % of the observations "
               "with an exact projection; tracked error (px) by place in the track")
@@ -273,6 +343,11 @@ def main() -> None:
               + ": mean (observations)")
         for band, cells in r["along_motion_px_by_colatitude"].items():
             print(f"     {band:>8s}: " + "  ".join(f"{g} {v:+.4f} ({n})" for g, (v, n) in cells.items()))
+        print("   along the motion by the keyframe's true turn from the one before (deg), places 1-6: mean "
+              "(observations)")
+        for band, cells in r["along_motion_px_by_turn"].items():
+            print(f"     {band:>8s}: {cells['keyframes']} keyframes  " + "  ".join(
+                f"{q} {v:+.4f} ({n})" for q, (v, n) in cells.items() if q != "keyframes"))
         results.append(r)
     summary = {"benchmark": "exact_observations", "machine": platform.platform(), "cpus": os.cpu_count(),
                "results": results}

@@ -67,12 +67,12 @@ def test_parts_hand_over_exact_pixels_plus_the_error_asked_for():
     motion = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
     place = np.array([1, 4, 0])
     got = {p: bench.part_pixels(p, tracked, exact, motion, place, 240.0, np.array([40.0, 87.0, 10.0]))
-           for p in bench.PARTS}
+           for p in bench.PIXEL_PARTS}
     expected = {"all": tracked[:2], "exact": exact[:2], "along": [[100.3, 100.0], [300.0, 401.0]],
                 "across": [[100.0, 100.4], [299.0, 400.0]], "top": [tracked[0], exact[1]],
                 "bottom": [exact[0], tracked[1]], "early": [tracked[0], exact[1]], "late": [exact[0], tracked[1]],
                 "inner": [tracked[0], exact[1]], "rim": [exact[0], tracked[1]]}
-    for p in bench.PARTS:
+    for p in bench.PIXEL_PARTS:
         np.testing.assert_allclose(got[p][:2], expected[p], atol=1e-12, err_msg=p)
         np.testing.assert_allclose(got[p][2], tracked[2], err_msg=p)  # no exact projection: the tracked one stays
 
@@ -98,3 +98,40 @@ def test_errors_by_place_split_along_and_across_the_motion():
     np.testing.assert_allclose([by_colatitude["0..30"]["1-2"][0], by_colatitude["0..30"]["3-4"][0],
                                 by_colatitude["30..45"]["1-2"][0]], [0.1, 0.1, 0.3])
     assert [by_colatitude["0..30"]["1-2"][1], by_colatitude["30..45"]["1-2"][1]] == [1, 1]
+
+
+def test_the_mean_lag_of_a_place_in_the_track_is_taken_along_each_motion():
+    # Two observations at place 1 lag by 0.1 and 0.3 px along their motions, one at place 2 leads by 0.2.
+    exact = [np.array([[100.0, 100.0], [200.0, 100.0]]), np.array([[110.0, 100.0], [200.0, 90.0], [50.0, 50.0]])]
+    motions = [np.zeros((2, 2)), np.array([[1.0, 0.0], [0.0, -1.0], [0.0, 1.0]])]
+    places = [np.array([0, 0]), np.array([1, 1, 2])]
+    keypoints = [exact[0], exact[1] + [[-0.1, 0.0], [0.0, 0.3], [0.0, 0.2]]]
+    front = SimpleNamespace(keyframes=[SimpleNamespace(keypoints=k) for k in keypoints])
+    lags = bench.mean_lag(front, fisheye_camera(640, 480), exact, motions, places, "")
+    np.testing.assert_allclose(lags[0], 0.0)
+    np.testing.assert_allclose(lags[1], [[-0.2, 0.0], [0.0, 0.2], [0.0, 0.2]], atol=1e-12)
+
+
+def test_noise_is_added_to_exact_pixels_only():
+    exact = [np.array([[100.0, 100.0], [np.nan, np.nan]])]
+    tracked = [SimpleNamespace(keypoints=np.array([[100.5, 99.5], [7.0, 8.0]]))]
+    got = bench.noisy(tracked, exact, 0.3, np.random.default_rng(1))[0]
+    np.testing.assert_array_equal(got[1], [7.0, 8.0])
+    draws = np.array([bench.noisy(tracked, exact, 0.3, np.random.default_rng(s))[0][0] for s in range(2000)])
+    np.testing.assert_allclose(draws.mean(axis=0), [100.0, 100.0], atol=0.03)
+    np.testing.assert_allclose(draws.std(axis=0), [0.3, 0.3], rtol=0.05)
+
+
+def test_errors_by_turn_group_keyframes_by_their_true_rotation():
+    def about_z(deg):
+        a = np.radians(deg)
+        return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    R = np.array([about_z(0.0), about_z(0.2), about_z(5.2)])  # turns of 0.2 and 5 deg from the keyframe before
+    exact = [np.array([[100.0, 100.0]])] * 3
+    motions = [np.array([[1.0, 0.0]])] * 3
+    places = [np.array([0]), np.array([1]), np.array([2])]
+    front = SimpleNamespace(keyframes=[SimpleNamespace(keypoints=exact[0] + [[e, 0.3]]) for e in (0.0, -0.05, -0.1)])
+    got = bench.errors_by_turn(front, exact, motions, places, R)
+    assert sorted(got) == ["0..0.5", "4..6"]
+    assert got["0..0.5"]["keyframes"] == 2 and got["4..6"]["keyframes"] == 1
+    assert got["0..0.5"][1] == pytest.approx((-0.05, 1)) and got["4..6"][2] == pytest.approx((-0.1, 1))
