@@ -179,21 +179,24 @@ def mean_lag(front, camera, exact, motions, places, by: str) -> list[np.ndarray]
     def cells(uv, q):
         place = np.minimum(q, 9)
         if by == "sector":
-            d = uv - centre
-            return place * 8 + np.floor((np.degrees(np.arctan2(d[:, 1], d[:, 0])) + 180) / 45).astype(int) % 8
+            return place * 8 + sector(uv - centre)
         if by == "colatitude":
             return place * 8 + np.clip(np.searchsorted(_COLATITUDES, colatitude_deg(camera, uv)) - 1, 0, 7)
         return place
     total, count = np.zeros(80), np.zeros(80)
-    for kf, uv, m, q in zip(front.keyframes, exact, motions, places):
+    keyed = [cells(np.nan_to_num(uv), q) for uv, q in zip(exact, places)]
+    for kf, uv, m, q, c in zip(front.keyframes, exact, motions, places, keyed):
         a = ((kf.keypoints - uv) * m).sum(axis=1)
         ok = (q > 0) & np.isfinite(a) & (np.abs(a) < 2)
-        c = cells(np.nan_to_num(uv), q)[ok]
-        np.add.at(total, c, a[ok])
-        np.add.at(count, c, 1)
+        np.add.at(total, c[ok], a[ok])
+        np.add.at(count, c[ok], 1)
     mean = np.where(count > 0, total / np.maximum(count, 1), 0.0)
-    return [np.where((q > 0)[:, None], mean[cells(np.nan_to_num(uv), q)][:, None] * m, 0.0)
-            for uv, m, q in zip(exact, motions, places)]
+    return [np.where((q > 0)[:, None], mean[c][:, None] * m, 0.0) for m, q, c in zip(motions, places, keyed)]
+
+
+def sector(d: np.ndarray) -> np.ndarray:
+    """The 45 deg sector (0..7, from -180 deg, image y down) of offsets d (N, 2) from the image centre."""
+    return np.floor((np.degrees(np.arctan2(d[:, 1], d[:, 0])) + 180) / 45).astype(int) % 8
 
 
 def judged(net, G: np.ndarray, network) -> dict:
@@ -236,7 +239,7 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
     RMS and median absolute value; its mean along the motion by 45 deg sector around the image's centre, and by
     band of colatitude (the angle from the optical axis) for places 1-2, 3-4, 5-6 and 7-8."""
     cam_centre = np.array([camera.width - 1, camera.height - 1]) / 2
-    a_, c_, p, ang, col = [], [], [], [], []
+    a_, c_, p, sec, col = [], [], [], [], []
     for kf, uv, m, q in zip(front.keyframes, exact, motions, places):
         error = kf.keypoints - uv
         a = (error * m).sum(axis=1)
@@ -245,12 +248,10 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
         a_.append(a[ok])
         c_.append(c[ok])
         p.append(q[ok])
-        d = uv[ok] - cam_centre
-        ang.append(np.degrees(np.arctan2(d[:, 1], d[:, 0])))
+        sec.append(sector(uv[ok] - cam_centre))
         col.append(colatitude_deg(camera, uv[ok]))
-    a, c, p, ang, col = (np.concatenate(x) for x in (a_, c_, p, ang, col))
+    a, c, p, sectors, col = (np.concatenate(x) for x in (a_, c_, p, sec, col))
     places_ = [q for q in range(1, 9) if (p == q).any()]
-    sector = np.floor((ang + 180) / 45).astype(int) % 8
     by_colatitude = {}
     for lo, hi in zip(_COLATITUDES[:-1], _COLATITUDES[1:]):
         band = (col >= lo) & (col < hi)
@@ -266,8 +267,8 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
         "along_median_abs_px_by_place": {q: float(np.median(np.abs(a[p == q]))) for q in places_},
         "across_median_abs_px_by_place": {q: float(np.median(np.abs(c[p == q]))) for q in places_},
         "observations_by_place": {q: int((p == q).sum()) for q in places_},
-        "along_motion_px_by_sector": {f"{-180 + 45 * k:+d}..{-135 + 45 * k:+d}": float(a[sector == k].mean())
-                                      for k in range(8) if (sector == k).any()},
+        "along_motion_px_by_sector": {f"{-180 + 45 * k:+d}..{-135 + 45 * k:+d}": float(a[sectors == k].mean())
+                                      for k in range(8) if (sectors == k).any()},
         "along_motion_px_by_colatitude": by_colatitude,  # band -> place group -> (mean, observations)
     }
 
