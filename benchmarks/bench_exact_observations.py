@@ -348,7 +348,7 @@ def main() -> None:
               "(observations)")
         for band, cells in r["along_motion_px_by_turn"].items():
             print(f"     {band:>8s}: {cells['keyframes']} keyframes  " + "  ".join(
-                f"{q} {v:+.4f} ({n})" for q, (v, n) in cells.items() if q != "keyframes"))
+                f"{q} {c[0]:+.4f} ({c[1]})" for q, c in cells.items() if q != "keyframes"))
         results.append(r)
     summary = {"benchmark": "exact_observations", "machine": platform.platform(), "cpus": os.cpu_count(),
                "results": results}

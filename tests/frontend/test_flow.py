@@ -68,3 +68,18 @@ def test_points_outside_their_neighbourhood_or_without_one_get_no_bend():
     assert np.array_equal(J[1], np.eye(2)) and not H[1].any()
     J, H, ok = local_quadratic_motion(src[:5], _motion(src[:5]), at)  # too few matches
     assert not ok.any() and not H.any()
+
+
+def test_a_neighbourhood_on_a_line_gets_no_bend_and_leaves_the_others_theirs():
+    # Matches along one line fix no quadratic across it: that point's normal matrix is singular, which the
+    # batched test of the well-conditioned fits must catch without losing the other points' fits.
+    rng = np.random.default_rng(3)
+    cloud = rng.uniform(100, 200, (400, 2))
+    line = np.stack([np.linspace(400, 500, 60), np.full(60, 300.0)], axis=1)
+    src = np.concatenate([cloud, line])
+    at = np.array([[150.0, 150.0], [450.0, 300.0]])
+    J, H, ok = local_quadratic_motion(src, _motion(src), at)
+    assert ok.tolist() == [True, False]
+    assert np.array_equal(J[1], np.eye(2)) and not H[1].any()
+    _, Ht = _derivatives(_motion, at[:1])
+    assert np.abs(H[0] - Ht[0]).max() < 1e-4

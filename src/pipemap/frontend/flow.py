@@ -17,13 +17,26 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipemap.solvers import mad_sigma
+from pipemap.solvers.robust import MAD_TO_SIGMA
 
 
 def _design(d: np.ndarray) -> np.ndarray:
     """Quadratic monomials (1, u, v, u^2/2, uv, v^2/2) of offsets d (..., 2)."""
     u, v = d[..., 0], d[..., 1]
     return np.stack([np.ones_like(u), u, v, 0.5 * u * u, u * v, 0.5 * v * v], axis=-1)
+
+
+def _well_conditioned(A: np.ndarray) -> np.ndarray:
+    """(M,) whether each normal matrix (M, c, c) has its least eigenvalue above 1e-6 of its largest. A batched
+    Cholesky of A less that margin (the largest eigenvalue bounded by the trace) decides every matrix at once
+    when all pass, ten times faster than their eigenvalues; otherwise the eigenvalues decide."""
+    trace = np.trace(A, axis1=1, axis2=2)
+    try:
+        np.linalg.cholesky(A - (1e-6 * trace)[:, None, None] * np.eye(A.shape[1]))
+        return np.ones(len(A), bool)
+    except np.linalg.LinAlgError:
+        eig = np.linalg.eigvalsh(A)
+        return eig[:, 0] > 1e-6 * np.maximum(eig[:, -1], 1e-30)
 
 
 def _fit(X: np.ndarray, Y: np.ndarray, w: np.ndarray, max_residual_px: float):
@@ -34,13 +47,16 @@ def _fit(X: np.ndarray, Y: np.ndarray, w: np.ndarray, max_residual_px: float):
     XtW = np.swapaxes(Xc * w[..., None], 1, 2)
     A = XtW @ Xc
     b = XtW @ Y
-    eig = np.linalg.eigvalsh(A)
-    good = eig[:, 0] > 1e-6 * np.maximum(eig[:, -1], 1e-30)
+    good = _well_conditioned(A)
     A[~good] = np.eye(cols)
     coef = np.linalg.solve(A, b)  # (M, cols, 2)
-    res = np.linalg.norm(Xc @ coef - Y, axis=2)
-    sigma = mad_sigma(res, centre=0.0, axis=1, keepdims=True)
-    return good, coef, (res <= np.maximum(3.0 * sigma, max_residual_px)).astype(float)
+    r = Xc @ coef - Y
+    res = np.hypot(r[..., 0], r[..., 1])
+    # 1.4826 x the median of the residual norms (their spread from zero), the median by partition
+    k = res.shape[1]
+    part = np.partition(res, ((k - 1) // 2, k // 2), axis=1)
+    sigma = MAD_TO_SIGMA * 0.5 * (part[:, (k - 1) // 2] + part[:, k // 2])
+    return good, coef, (res <= np.maximum(3.0 * sigma, max_residual_px)[:, None]).astype(float)
 
 
 def local_quadratic_motion(src: np.ndarray, dst: np.ndarray, at: np.ndarray, neighbours: int = 32,
