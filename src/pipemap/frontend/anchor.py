@@ -187,6 +187,12 @@ def _warped_patches(sample: _Bilinear, p: np.ndarray, A: np.ndarray, bend: np.nd
     return out
 
 
+def _inverse_2x2(M: np.ndarray) -> np.ndarray:
+    """Inverses of 2x2 matrices (N, 2, 2) by their adjugates (a singular one gives inf or nan, refused later)."""
+    adj = np.stack([M[:, 1, 1], -M[:, 0, 1], -M[:, 1, 0], M[:, 0, 0]], axis=1).reshape(-1, 2, 2)
+    return adj / (M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0])[:, None, None]
+
+
 def refine_to_anchors(image: np.ndarray, anchors: Anchors, positions: np.ndarray, patch: int, iterations: int = 6,
                       max_shift_px: float = 1.5, min_zncc: float = 0.7,
                       max_stretch: float = 4.0) -> tuple[np.ndarray, np.ndarray, Anchors]:
@@ -211,7 +217,7 @@ def refine_to_anchors(image: np.ndarray, anchors: Anchors, positions: np.ndarray
             d = np.matmul(anchors.inverse_hessian[rows], np.matmul(anchors.steepest[rows], r[:, :, None]))
             d = d[:, :, 0].astype(np.float64)
             # W(x; p, A) <- W(x; p, A) o W(x; d)^-1, W(x; d) = x + D x + d_t
-            A_new = A[rows] @ np.linalg.inv(np.eye(2) + d[:, 2:6].reshape(-1, 2, 2))
+            A_new = A[rows] @ _inverse_2x2(np.eye(2) + d[:, 2:6].reshape(-1, 2, 2))
             p[rows] -= np.einsum("nij,nj->ni", A_new, d[:, :2])
             A[rows] = A_new
             active = active[np.abs(d[:, :2]).max(axis=1) >= 1e-3]
