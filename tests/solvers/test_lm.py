@@ -57,3 +57,18 @@ def test_mad_sigma_is_a_normal_sigma_and_rejects_what_lies_beyond_k_of_them():
     assert mad_sigma(np.abs(x - 1.0), centre=0.0) == pytest.approx(2.0, rel=0.02)  # sizes, spread from zero
     keep = mad_inliers(x, 3.0)
     assert keep.mean() == pytest.approx(0.9973, abs=0.002)
+
+
+def test_mad_sigma_along_an_axis_is_the_same_as_by_numpys_median():
+    # The median along an axis is taken by one partition (odd and even lengths, keepdims or not); a row with a
+    # NaN goes to np.median, which carries it.
+    rng = np.random.default_rng(5)
+    for shape, axis in (((40, 32), 1), ((40, 31), 1), ((6, 9, 4), 0), ((3, 1), 1)):
+        x = rng.normal(size=shape)
+        for keepdims in (False, True):
+            want = 1.4826 * np.median(np.abs(x - np.median(x, axis=axis, keepdims=True)), axis=axis, keepdims=keepdims)
+            assert np.array_equal(mad_sigma(x, axis=axis, keepdims=keepdims), want)
+    x = rng.normal(size=(4, 6))
+    x[1, 2] = np.nan
+    got = mad_sigma(x, centre=0.0, axis=1)
+    assert np.isnan(got[1]) and np.array_equal(got[[0, 2, 3]], 1.4826 * np.median(np.abs(x[[0, 2, 3]]), axis=1))

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipemap.solvers.robust import MAD_TO_SIGMA
+from pipemap.solvers import mad_sigma
 
 
 def _design(d: np.ndarray) -> np.ndarray:
@@ -52,11 +52,8 @@ def _fit(X: np.ndarray, Y: np.ndarray, w: np.ndarray, max_residual_px: float):
     coef = np.linalg.solve(A, b)  # (M, cols, 2)
     r = Xc @ coef - Y
     res = np.hypot(r[..., 0], r[..., 1])
-    # 1.4826 x the median of the residual norms (their spread from zero), the median by partition
-    k = res.shape[1]
-    part = np.partition(res, ((k - 1) // 2, k // 2), axis=1)
-    sigma = MAD_TO_SIGMA * 0.5 * (part[:, (k - 1) // 2] + part[:, k // 2])
-    return good, coef, (res <= np.maximum(3.0 * sigma, max_residual_px)[:, None]).astype(float)
+    sigma = mad_sigma(res, centre=0.0, axis=1, keepdims=True)
+    return good, coef, (res <= np.maximum(3.0 * sigma, max_residual_px)).astype(float)
 
 
 def local_quadratic_motion(src: np.ndarray, dst: np.ndarray, at: np.ndarray, neighbours: int = 32,

@@ -35,13 +35,25 @@ def huber_irls(k: float, group: int = 1):
     return cost
 
 
+def _median(x: np.ndarray, axis, keepdims: bool):
+    """np.median of a float array, by one partition along `axis` where nothing is NaN: the same values (the mean
+    of the two middle ones is their half-sum either way), without np.median's overhead on many short rows."""
+    if axis is None or x.shape[axis] == 0 or np.isnan(x).any():
+        return np.median(x, axis=axis, keepdims=keepdims)
+    n = x.shape[axis]
+    lo, hi = (n - 1) // 2, n // 2
+    part = np.partition(x, sorted({lo, hi}), axis=axis)
+    m = 0.5 * (np.take(part, lo, axis=axis) + np.take(part, hi, axis=axis))
+    return np.expand_dims(m, axis) if keepdims else m
+
+
 def mad_sigma(x: np.ndarray, centre: float | np.ndarray | None = None, axis=None, keepdims: bool = False):
     """Robust standard deviation 1.4826 x the median absolute deviation of x from `centre` (default: the
     median; 0 for sizes such as distances or residual norms, whose spread is measured from zero)."""
     x = np.asarray(x, float)
     if centre is None:
-        centre = np.median(x, axis=axis, keepdims=True)
-    return MAD_TO_SIGMA * np.median(np.abs(x - centre), axis=axis, keepdims=keepdims)
+        centre = _median(x, axis, True)
+    return MAD_TO_SIGMA * _median(np.abs(x - centre), axis, keepdims)
 
 
 def mad_inliers(errors: np.ndarray, k: float, reference: np.ndarray | None = None, floor: float = 0.0) -> np.ndarray:
