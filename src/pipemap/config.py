@@ -150,6 +150,10 @@ class BundleSettings(_Section):
     mad_k: float = Field(3.0, gt=0, description="outliers beyond k x 1.4826 MAD of the Huber-weighted errors")
     outlier_passes: int = Field(3, ge=0, description="iterations at which MAD outlier removal runs")
     max_iterations: int = Field(20, gt=0)
+    track_age_keyframes: float | None = Field(None, gt=0, description="a window's observation counts with a pixel "
+                                              "sigma of 1 + age / this, its age the keyframes since its track's "
+                                              "first: the anchor match's error grows along a track "
+                                              "(bench_exact_observations.py); None: every observation alike")
     bend_knot_m: float | None = Field(0.25, gt=0, description="knot spacing of the window cylinder's bent axis (pipe "
                                       "runs sag and kink at joints by millimetres); None: a straight cylinder")
     bend_kink_deg: float = Field(0.5, gt=0, description="prior sigma of the axis's change of direction at a knot")

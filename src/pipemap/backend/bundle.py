@@ -161,11 +161,15 @@ class BundleProblem:
                  fixed_distance: tuple[int, int] | None = None, distance_weight: float = 1e6,
                  bend_knot_m: float | None = None, bend_kink_deg: float = _B.bend_kink_deg,
                  bend_offset_mm: float = _B.bend_offset_mm, bend_sag_mm: float = _B.bend_sag_mm,
-                 axis_prior: tuple[np.ndarray, float] | None = None):
+                 axis_prior: tuple[np.ndarray, float] | None = None, observation_sigma: np.ndarray | None = None):
         self.camera = camera
         R, t, X, obs = problem_inputs(poses, points, observations)
         N, M = len(R), len(X)
         self.obs, self.N, self.M = obs, N, M
+        # each observation's pixel error in units of the nominal one: its residual and Jacobian are divided by it
+        self.sigma = np.ones(len(obs)) if observation_sigma is None else np.asarray(observation_sigma, float)
+        if self.sigma.shape != (len(obs),) or not np.all(self.sigma > 0):
+            raise ValueError(f"observation_sigma must be ({len(obs)},) and positive")
         self.fixed = np.zeros(N, bool)
         self.fixed[list(fixed_poses)] = True
         self.free_index = np.full(N, -1)
@@ -247,7 +251,7 @@ class BundleProblem:
     def cost(self, state: BundleState, inliers: np.ndarray, lin: Linearisation | None = None) -> float:
         """eps = sum huber_px(|u' - u|) + tau sum huber_m(|d|) over inlier observations and active points."""
         lin = lin or self.linearise(state, jacobians=False)
-        c = float(huber_cost(np.linalg.norm(lin.reproj[inliers], axis=1), self.huber_px).sum())
+        c = float(huber_cost(np.linalg.norm(lin.reproj[inliers], axis=1) / self.sigma[inliers], self.huber_px).sum())
         if lin.dist is not None:
             on = self._active_points(inliers) & self.cylinder_points
             c += self.tau * float(huber_cost(np.abs(lin.dist[on]), self.huber_m).sum())
@@ -283,7 +287,8 @@ class BundleProblem:
         st = stage if stage is not None else self.stage(inliers)
         lin = self.linearise(state)
         e, Jc, Jp = lin.reproj[inliers], lin.J_pose[inliers], lin.J_point[inliers]
-        w = huber_weights(np.linalg.norm(e, axis=1), self.huber_px)
+        s = self.sigma[inliers]
+        w = huber_weights(np.linalg.norm(e, axis=1) / s, self.huber_px) / (s * s)
         wJp = w[:, None, None] * Jp
         V = st.to_point(np.swapaxes(wJp, 1, 2) @ Jp)
         gp = st.to_point(np.einsum("kai,ka->ki", wJp, e))
@@ -335,7 +340,7 @@ class BundleProblem:
         return state.retract(pose_delta, dp, dx if len(dx) else None)
 
     def _reject(self, state: BundleState, inliers: np.ndarray) -> np.ndarray:
-        e = self.linearise(state, jacobians=False).reproj
+        e = self.linearise(state, jacobians=False).reproj / self.sigma[:, None]
         a = np.linalg.norm(e, axis=1)
         weighted = np.sqrt(huber_weights(a, self.huber_px))[:, None] * e
         return mad_inliers(weighted, self.mad_k, reference=inliers, floor=self.huber_px) & np.all(np.isfinite(e), 1)

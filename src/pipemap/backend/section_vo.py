@@ -438,6 +438,8 @@ class StraightVO:
         if self.b.tau <= 0 and len(fixed) < 2:
             kwargs["fixed_distance"] = (0, n - 1)
         obs = Observations(ks - first, inv, pixels)
+        if self.b.track_age_keyframes is not None:
+            kwargs["observation_sigma"] = 1.0 + (ks - self._first_kf[uniq[inv]]) / self.b.track_age_keyframes
         before = np.mean(np.linalg.norm(np.diff(c, axis=0), axis=1))
         res = BundleProblem.from_settings(self.camera, (R, c), self._X[uniq], obs, self.b, **kwargs).solve()
         after = self._take_window(res, uniq, first, last, ks, rows, R[0])
