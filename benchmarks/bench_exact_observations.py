@@ -13,6 +13,7 @@ network back end (`map_network`, as `pipemap run` runs it) then runs on each par
 - along / across: exact plus the tracking's error along / across each track's image motion since its previous
   observation; top / bottom: exact plus the error of the observations in the upper / lower half of the image;
   early / late: exact plus the error of each track's second and third / fourth and later observations;
+  early-along / early-across / late-along / late-across: the same, only the error's part along / across the motion;
   inner / rim: exact plus the error of the observations within / beyond 85 deg of the optical axis;
   noise: exact plus independent Gaussian noise of --noise-px (seeded);
   debiased / debiased-sector / debiased-colatitude: the tracked observations less the mean error along the motion
@@ -45,7 +46,8 @@ from pipemap.network import load_network
 from pipemap.pipeline import map_network, track_and_classify
 from pipemap.trajectory import read_tum
 
-PIXEL_PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late", "inner", "rim")
+PIXEL_PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late", "inner", "rim", "early-along",
+               "early-across", "late-along", "late-across")
 PARTS = PIXEL_PARTS + ("debiased", "debiased-sector", "debiased-colatitude", "noise")
 _RIM_DEG = 85.0
 
@@ -131,12 +133,9 @@ def part_pixels(part: str, tracked: np.ndarray, exact: np.ndarray, motion: np.nd
             "early": (place >= 1) & (place <= 2), "late": place >= 3}
     if colatitude is not None:  # degrees, of the exact pixels
         keep.update(inner=colatitude < _RIM_DEG, rim=colatitude >= _RIM_DEG)
-    if part == "along":
-        added = along
-    elif part == "across":
-        added = error - along
-    else:
-        added = np.where(keep[part][:, None], error, 0.0)
+    which, _, component = (f"all-{part}" if part in ("along", "across") else part).partition("-")
+    added = {"along": along, "across": error - along, "": error}[component]
+    added = np.where(keep[which][:, None], added, 0.0)
     out = exact + added
     return np.where(np.all(np.isfinite(exact), axis=1)[:, None], out, tracked)
 
