@@ -15,6 +15,7 @@ network back end (`map_network`, as `pipemap run` runs it) then runs on each par
   early / late: exact plus the error of each track's second and third / fourth and later observations;
   early-along / early-across / late-along / late-across: the same, only the error's part along / across the motion;
   inner / rim: exact plus the error of the observations within / beyond 85 deg of the optical axis;
+  inner-along / rim-along: the same, only the error's part along the motion;
   noise: exact plus independent Gaussian noise of --noise-px (seeded);
   debiased / debiased-sector / debiased-colatitude: the tracked observations less the mean error along the motion
   of their place in the track (and 45 deg sector about the image centre, or band of colatitude), measured over the
@@ -47,7 +48,7 @@ from pipemap.pipeline import map_network, track_and_classify
 from pipemap.trajectory import read_tum
 
 PIXEL_PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late", "inner", "rim", "early-along",
-               "early-across", "late-along", "late-across")
+               "early-across", "late-along", "late-across", "inner-along", "rim-along")
 PARTS = PIXEL_PARTS + ("debiased", "debiased-sector", "debiased-colatitude", "noise")
 _RIM_DEG = 85.0
 

@@ -73,7 +73,8 @@ def test_parts_hand_over_exact_pixels_plus_the_error_asked_for():
                 "bottom": [exact[0], tracked[1]], "early": [tracked[0], exact[1]], "late": [exact[0], tracked[1]],
                 "inner": [tracked[0], exact[1]], "rim": [exact[0], tracked[1]],
                 "early-along": [[100.3, 100.0], exact[1]], "early-across": [[100.0, 100.4], exact[1]],
-                "late-along": [exact[0], [300.0, 401.0]], "late-across": [exact[0], [299.0, 400.0]]}
+                "late-along": [exact[0], [300.0, 401.0]], "late-across": [exact[0], [299.0, 400.0]],
+                "inner-along": [[100.3, 100.0], exact[1]], "rim-along": [exact[0], [300.0, 401.0]]}
     for p in bench.PIXEL_PARTS:
         np.testing.assert_allclose(got[p][:2], expected[p], atol=1e-12, err_msg=p)
         np.testing.assert_allclose(got[p][2], tracked[2], err_msg=p)  # no exact projection: the tracked one stays

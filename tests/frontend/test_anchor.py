@@ -199,3 +199,68 @@ def test_bilinear_samples_and_shifted_windows_are_exact():
     truth = map_coordinates(img.astype(np.float64), [np.broadcast_to(rows, windows.shape),
                                                      np.broadcast_to(cols, windows.shape)], order=1)
     assert np.abs(windows - truth).max() < 1e-4 * 255
+
+
+def test_a_light_fixed_in_the_image_is_projected_out():
+    """The robot's light stays where it is in the image while the wall moves: a quadratic brightness field fixed in
+    the image differs between a template and its match. Projected out (6 terms) it leaves the interpolation's
+    few hundredths of a pixel; with the mean alone (ZNCC) its gradient pulls the worst matches more than 0.1 px."""
+    img = _texture(seed=11)
+    h, w = img.shape
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    light = 0.05 * ((x - 120) ** 2 + 0.5 * (y - 120) ** 2 + 0.3 * (x - 120) * (y - 120))
+    pts = _grid_points(6)
+    centre = np.array([120.0, 120.0])
+    A, shift = np.eye(2) * 1.05, np.array([5.3, -3.1])
+    moved = _warped(img, A, shift, centre) + light
+    truth = centre + (pts - centre) @ A.T + shift
+    worst = {}
+    for terms in (1, 6):
+        anchors = anchor_templates(img + light, pts, PATCH, terms)
+        ok, pos, _ = refine_to_anchors(moved, anchors, truth + 0.3, PATCH, iterations=15, brightness_terms=terms)
+        assert ok.all()
+        worst[terms] = np.linalg.norm(pos - truth, axis=1).max()
+    assert worst[6] < 0.08
+    assert worst[1] > 0.11
+
+
+def test_a_magnified_patch_keeps_its_place_on_log_brightness():
+    """A high-pass filter fixed in the image (the flattened image) passes another band of the wall's texture once a
+    patch is magnified, and the match slides; log brightness less a quadratic per patch compares the same texture
+    at any stretch. Texture with structure at 1.2 and 4 px, magnified 1.8 times."""
+    from pipemap.frontend.harris import _local_mean
+
+    rng = np.random.default_rng(0)
+    fine = cv2.GaussianBlur(rng.normal(0, 1, (240, 240)).astype(np.float32), (0, 0), 1.2)
+    coarse = cv2.GaussianBlur(rng.normal(0, 1, (240, 240)).astype(np.float32), (0, 0), 4.0)
+    wall = fine / fine.std() + 0.5 * coarse / coarse.std()
+    wall = 40 * wall / wall.std()
+    centre, A, shift = np.array([120.0, 120.0]), np.eye(2) * 1.8, np.array([0.4, -0.2])
+    pts = _grid_points(6, 90, 150)
+    moved = _warped(wall, A, shift, centre)
+    truth = centre + (pts - centre) @ A.T + shift
+
+    def median_error(template_image, image, terms):
+        anchors = anchor_templates(template_image, pts, PATCH, terms)
+        anchors.warps[:] = A  # carried from earlier keyframes
+        ok, pos, _ = refine_to_anchors(image, anchors, truth + 0.3, PATCH, iterations=15, brightness_terms=terms)
+        assert ok.all()
+        return np.median(np.linalg.norm(pos - truth, axis=1))
+
+    flattened = median_error(wall - _local_mean(wall, 4.0), moved - _local_mean(moved, 4.0), 1)
+    quadratic = median_error(wall, moved, 6)
+    assert quadratic < 0.025
+    assert flattened > 0.1
+
+
+def test_brightness_terms_are_orthonormal_polynomials():
+    from pipemap.frontend.anchor import _brightness_basis, _offsets
+
+    g = _offsets(PATCH)
+    for terms in (1, 3, 6):
+        B = _brightness_basis(PATCH, terms).astype(np.float64)
+        assert np.allclose(B @ B.T, np.eye(terms), atol=1e-5)
+        poly = np.stack([np.ones(len(g)), g[:, 0], g[:, 1], g[:, 0] ** 2, g[:, 0] * g[:, 1], g[:, 1] ** 2])[:terms]
+        assert np.allclose(poly - (poly @ B.T) @ B, 0, atol=1e-3 * np.abs(poly).max())
+    with pytest.raises(ValueError):
+        _brightness_basis(PATCH, 4)

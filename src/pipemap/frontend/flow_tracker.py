@@ -209,8 +209,9 @@ class FlowTracker(FeatureTracker):
     # -- keyframes ------------------------------------------------------------------------
 
     def _keyframe_corners(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(the flattened image, Harris corners, their bearings) of a frame that becomes a keyframe."""
-        image, points = self.corners(frame)
+        """(the frame as the anchor match sees it, Harris corners, their bearings) of a frame that becomes a
+        keyframe."""
+        _, image, points = self.corners(frame)
         bearings, _ = self.camera.unproject(points)
         return image, points, bearings.reshape(-1, 3)
 
@@ -266,7 +267,8 @@ class FlowTracker(FeatureTracker):
         inliers = np.r_[np.ones(len(rows), bool), np.zeros(n_new, bool)]
         anchors = None
         if carried is not None:
-            anchors = Anchors.concatenate([carried.take(consistent), anchor_templates(image, corners, s.zncc_patch)])
+            anchors = Anchors.concatenate([carried.take(consistent),
+                                           anchor_templates(image, corners, s.zncc_patch, self.brightness_terms)])
         frame = m.data.frame
         features = _Features(frame.index, frame.timestamp, image, None, keypoints, all_bearings, None, anchors)
         keyframe = Keyframe(len(self.keyframes), frame.index, frame.timestamp, keypoints, all_bearings, track_ids,
@@ -287,4 +289,5 @@ class FlowTracker(FeatureTracker):
             step_J, step_H, _ = local_quadratic_motion(src, positions, src, s.anchor_bend_neighbours)
             anchors = anchors.carry(step_J, step_H)
         return refine_to_anchors(image, anchors, positions, s.zncc_patch, s.anchor_iterations,
-                                 s.anchor_max_shift_px, s.anchor_min_zncc, s.anchor_max_stretch)
+                                 s.anchor_max_shift_px, s.anchor_min_zncc, s.anchor_max_stretch,
+                                 self.brightness_terms)

@@ -67,6 +67,12 @@ def flatten_lighting(image: np.ndarray, sigma_px: float, dark_level: float = 0.0
     return flat, lit
 
 
+def log_brightness(image: np.ndarray, log_offset: float = 8.0) -> np.ndarray:
+    """64 x log(I + log_offset): the robot's light becomes an additive term, the gain of an exposure change a
+    constant; the offset keeps the sensor's noise in the dark from being magnified."""
+    return np.log(np.asarray(image, np.float32) + np.float32(log_offset)) * np.float32(64.0)
+
+
 def _local_mean(image: np.ndarray, sigma_px: float) -> np.ndarray:
     """Two box filters (cost independent of sigma) approximating a Gaussian of `sigma_px`."""
     size = max(3, int(round(sigma_px * np.sqrt(6.0))) | 1)  # two boxes of width w have variance w^2 / 6

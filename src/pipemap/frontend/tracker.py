@@ -28,7 +28,7 @@ from pipemap.frontend.anchor import Anchors, anchor_templates, refine_to_anchors
 from pipemap.frontend.descriptors import describe, match_descriptors, smooth_for_templates
 from pipemap.frontend.flow import local_quadratic_motion
 from pipemap.frontend.guided import guided_zncc, predict_positions
-from pipemap.frontend.harris import bearing_map, detect_corners, flatten_lighting, valid_mask
+from pipemap.frontend.harris import bearing_map, detect_corners, flatten_lighting, log_brightness, valid_mask
 from pipemap.frontend.keyframes import needs_keyframe
 from pipemap.frontend.relpose import (
     RelativePose,
@@ -41,6 +41,10 @@ from pipemap.frontend.relpose import (
 from pipemap.frontend.tracks import Keyframe, TrackIds
 
 
+# frontend.anchor_lighting -> the brightness terms each anchor patch is compared without
+_BRIGHTNESS_TERMS = {"flattened": 1, "plane": 3, "quadratic": 6}
+
+
 @dataclass
 class _Features:
     index: int
@@ -51,6 +55,11 @@ class _Features:
     bearings: np.ndarray
     descriptors: np.ndarray
     anchors: Anchors | None = None  # keyframes: each track's patch where it was first seen, warp into this one
+    anchor_image: np.ndarray | None = None  # the frame as the anchor match sees it (None: `image`)
+
+    @property
+    def anchor_view(self) -> np.ndarray:
+        return self.image if self.anchor_image is None else self.anchor_image
 
 
 @dataclass
@@ -100,31 +109,35 @@ class FeatureTracker:
         self._candidate: _Match | None = None
         self._lost = 0
         self._reference = 0
+        self.brightness_terms = _BRIGHTNESS_TERMS[self.s.anchor_lighting]
 
     # -- per frame ------------------------------------------------------------------------
 
-    def corners(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
-        """The frame as matching sees it (blurred as set, lighting flattened) and its Harris corners (N, 2)."""
+    def corners(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The frame as matching sees it (blurred as set, lighting flattened), as the anchor match sees it
+        (`frontend.anchor_lighting`) and its Harris corners (N, 2)."""
         s = self.s
-        image = np.ascontiguousarray(frame.image, dtype=np.float32)
+        raw = np.ascontiguousarray(frame.image, dtype=np.float32)
         if s.smooth_sigma_px > 0:
-            image = cv2.GaussianBlur(image, (0, 0), s.smooth_sigma_px)
-        mask = self.mask
+            raw = cv2.GaussianBlur(raw, (0, 0), s.smooth_sigma_px)
+        image, mask = raw, self.mask
         if s.flatten_lighting:
-            image, lit = flatten_lighting(image, s.lighting_sigma_px, s.dark_level, contrast_limit=s.contrast_limit)
+            image, lit = flatten_lighting(raw, s.lighting_sigma_px, s.dark_level, contrast_limit=s.contrast_limit)
             mask = mask & lit
         points, _ = detect_corners(image, mask, tuple(s.regions), s.corners_per_region, s.harris_k, s.harris_block_px,
                                    min_distance_px=s.min_distance_px, quality=s.harris_quality)
-        return image, points
+        anchor_image = image if s.anchor_lighting == "flattened" else log_brightness(raw)
+        return image, anchor_image, points
 
     def extract(self, frame: Frame) -> _Features:
         s = self.s
-        image, points = self.corners(frame)
+        image, anchor_image, points = self.corners(frame)
         smoothed = smooth_for_templates(image, s.template_size, s.template_window)
         desc, usable = describe(smoothed, points, s.template_size, s.template_window)
         points, desc = points[usable], desc[usable]
         bearings, _ = self.camera.unproject(points)
-        return _Features(frame.index, frame.timestamp, image, smoothed, points, bearings.reshape(-1, 3), desc)
+        return _Features(frame.index, frame.timestamp, image, smoothed, points, bearings.reshape(-1, 3), desc,
+                         anchor_image=anchor_image)
 
     def _match(self, kf: _Features, f: _Features) -> _Match | None:
         s = self.s
@@ -188,7 +201,7 @@ class FeatureTracker:
         """A keyframe with no link to the previous one (the first, or after tracking was lost)."""
         n = len(f.keypoints)
         if self.s.anchor_refine:
-            f.anchors = anchor_templates(f.image, f.keypoints, self.s.zncc_patch)
+            f.anchors = anchor_templates(f.anchor_view, f.keypoints, self.s.zncc_patch, self.brightness_terms)
         kf = Keyframe(len(self.keyframes), f.index, f.timestamp, f.keypoints, f.bearings, self.ids.new(n),
                       np.zeros(n, bool), np.zeros(n, bool), np.eye(3), np.zeros(3), False)
         return self._emit(f, kf)
@@ -272,9 +285,9 @@ class FeatureTracker:
             src = kf.keypoints[rows]
             step_J, step_H, _ = local_quadratic_motion(src, found, src, s.anchor_bend_neighbours)
             anchors = anchors.carry(step_J, step_H)
-        ok, pos, carried = refine_to_anchors(f.image, anchors, found, s.zncc_patch,
+        ok, pos, carried = refine_to_anchors(f.anchor_view, anchors, found, s.zncc_patch,
                                              s.anchor_iterations, s.anchor_max_shift_px, s.anchor_min_zncc,
-                                             s.anchor_max_stretch)
+                                             s.anchor_max_stretch, self.brightness_terms)
         if ok.any():
             bear = np.concatenate([matched_bear, guided.bearings])
             new_bear, _ = self.camera.unproject(pos[ok])
@@ -307,9 +320,11 @@ class FeatureTracker:
         anchors = None
         if kept is not None:  # in the order of the keypoints: continued descriptor matches, new corners, guided
             anchors = Anchors.concatenate([kept.take(slice(0, n_desc)),
-                                           anchor_templates(f.image, f.keypoints[rest], s.zncc_patch),
+                                           anchor_templates(f.anchor_view, f.keypoints[rest], s.zncc_patch,
+                                                            self.brightness_terms),
                                            kept.take(slice(n_desc, None))])
-        features = _Features(f.index, f.timestamp, f.image, f.smoothed, keypoints, bearings, descriptors, anchors)
+        features = _Features(f.index, f.timestamp, f.image, f.smoothed, keypoints, bearings, descriptors, anchors,
+                             f.anchor_image)
         keyframe = Keyframe(len(self.keyframes), f.index, f.timestamp, keypoints, bearings, track_ids, inliers,
                             is_guided, R, t, True)
         return self._emit(features, keyframe)
