@@ -2,6 +2,7 @@
 
     python benchmarks/bench_junctions.py [--cases tee-pass-loop:A tee-pass-loop:B elbow-cross:A ...] [--seeds 1 2]
                                          [--size 640x480] [--data /tmp/pipemap-bench-junctions] [--set k=v ...]
+                                         [--specular 0]
 
 For each preset:route and seed it renders the dataset (cached under --data), runs `pipemap run` in a child process
 and judges the result against the ground truth with no scale alignment: how many junctions the map has against the
@@ -29,12 +30,13 @@ CASES = ["tee-pass-loop:A", "tee-pass-loop:B", "elbow-cross:A", "elbow-cross:B",
 
 
 def dataset(args, preset: str, route: str, seed: int) -> Path:
-    root = Path(args.data) / f"{preset}-{route}-{args.size}-s{seed}"
+    matte = "" if args.specular is None else f"-specular{args.specular:g}"
+    root = Path(args.data) / f"{preset}-{route}-{args.size}-s{seed}{matte}"
     if not (root / "dataset.yaml").exists():
         shutil.rmtree(root, ignore_errors=True)
         root.parent.mkdir(parents=True, exist_ok=True)
         width, height = (int(v) for v in args.size.split("x"))
-        simulate(preset, root, width=width, height=height, route=route, seed=seed, workers=2)
+        simulate(preset, root, width=width, height=height, route=route, seed=seed, workers=2, specular=args.specular)
     return root
 
 
@@ -61,6 +63,8 @@ def main() -> None:
     ap.add_argument("--size", default="640x480")
     ap.add_argument("--data", default="/tmp/pipemap-bench-junctions")
     ap.add_argument("--set", action="append", default=[], help="settings override section.key=value (repeatable)")
+    ap.add_argument("--specular", type=float, default=None,
+                    help="render the wall with this highlight strength (0: matte; default: the preset's)")
     ap.add_argument("--json-out", default=str(Path(__file__).parent / "results" / "junctions.json"))
     args = ap.parse_args()
     results = []
@@ -68,7 +72,7 @@ def main() -> None:
         preset, route = case.split(":")
         for seed in args.seeds:
             data = dataset(args, preset, route, seed)
-            name = f"{preset}-{route}-s{seed}"
+            name = f"{preset}-{route}-s{seed}" + ("" if args.specular is None else f"-specular{args.specular:g}")
             out = Path(args.data) / "runs" / name
             r = run_case(data, out, args.set)
             r.update(case=case, seed=seed, **judge(out, data))
@@ -87,7 +91,7 @@ def main() -> None:
                       f"radius {e['bend_radius_m']:.3f} m (estimate {e['estimate_bend_radius_m']})")
             results.append(r)
     summary = {"benchmark": "junctions", "machine": platform.platform(), "cpus": os.cpu_count(), "size": args.size,
-               "overrides": args.set, "results": results}
+               "overrides": args.set, "specular": args.specular, "results": results}
     Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json_out).write_text(json.dumps(summary, indent=2) + "\n")
     print(f"wrote {args.json_out}")

@@ -210,6 +210,8 @@ def simulate(
     spacing: Optional[float] = typer.Option(None, "--spacing", help="Metres between frames (default: the preset's)."),
     motion_blur: int = typer.Option(1, "--motion-blur", help="Sub-frames averaged per frame (1: no blur)."),
     texture: Optional[str] = typer.Option(None, "--texture", help="Wall style: procedural, brick or gravel (photos)."),
+    specular: Optional[float] = typer.Option(None, "--specular", help="Strength of the wall's highlight (default: "
+                                             "the preset's; 0: a matte wall)."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Rendering processes (default: one per core)."),
     camera_effects: Optional[str] = typer.Option(
         None, "--camera-effects", help="Inspection footage's defects: a profile ("
@@ -226,7 +228,7 @@ def simulate(
     with forced(out, force), frame_progress(f"rendering {preset}") as progress:
         render_dataset(preset, out, width=width, height=height, frames=frames, seed=seed, route=route,
                        progress=progress, spacing_m=spacing, motion_blur=motion_blur, texture=texture,
-                       workers=workers, effects=camera_effects)
+                       workers=workers, effects=camera_effects, specular=specular)
     poses = out / "ground_truth" / "poses.tum"
     n = len(read_tum(poses)) if poses.exists() else len(list((out / "images").glob("*.png")))
     console.print(f"{preset}: {n} frames written to {out}")

@@ -83,3 +83,29 @@ def test_images_do_not_depend_on_the_number_of_workers(tmp_path):
     runs = [simulate("demo-loop", tmp_path / f"w{w}", width=96, height=72, frames=6, seed=2, workers=w) for w in (1, 2)]
     for a, b in zip(*(sorted((r / "images").glob("*.png")) for r in runs)):
         assert a.read_bytes() == b.read_bytes()
+
+
+def test_specular_option_takes_the_highlight_off_the_wall(tmp_path):
+    """`--specular 0` renders a matte wall: the highlight, where the wall faces the camera's light beside the robot
+    (colatitude 80-95 deg), no longer brightens the rim against the wall further ahead (by about 16 % here)."""
+    import cv2
+    import yaml
+
+    ratio = {}
+    for name, args in (("preset", []), ("matte", ["--specular", "0"])):
+        out = tmp_path / name
+        r = runner.invoke(app, ["simulate", "fisheye-straight", "--out", str(out), "--width", "160", "--height", "120",
+                                "--frames", "1", *args])
+        assert r.exit_code == 0, r.output
+        img = cv2.imread(str(out / "images/000000.png"), cv2.IMREAD_GRAYSCALE).astype(float)
+        camera = load_dataset(out).camera
+        v, u = np.mgrid[0:camera.height, 0:camera.width]
+        bearings, _ = camera.unproject(np.stack([u.ravel(), v.ravel()], 1).astype(float))
+        colatitude = np.degrees(np.arccos(np.clip(bearings.reshape(-1, 3)[:, 2], -1, 1))).reshape(img.shape)
+        rim, ahead = (colatitude > 80) & (colatitude < 95), (colatitude > 30) & (colatitude < 60)
+        ratio[name] = img[rim].mean() / img[ahead].mean()
+        spec = yaml.safe_load((out / "ground_truth" / "simulation.yaml").read_text())["appearance"]["specular_strength"]
+        assert spec == (0.0 if name == "matte" else 0.15)
+    assert ratio["preset"] > 1.08 * ratio["matte"]
+    bad = runner.invoke(app, ["simulate", "fisheye-straight", "--out", str(tmp_path / "x"), "--specular", "-1"])
+    assert bad.exit_code == 2 and "highlight" in bad.output and not (tmp_path / "x").exists()

@@ -59,9 +59,10 @@ class Plan:
 
 
 def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, route=None, spacing_m=None,
-         texture: str | None = None) -> Plan:
+         texture: str | None = None, specular: float | None = None) -> Plan:
     """Resolve a preset: the setup, every frame's true pose and the junction visits.
-    `texture` replaces the preset's wall style (procedural, brick, gravel: real photos)."""
+    `texture` replaces the preset's wall style (procedural, brick, gravel: real photos); `specular` the strength of
+    the wall's highlight (0: a matte wall)."""
     if frames is not None and (not isinstance(frames, (int, np.integer)) or isinstance(frames, bool) or frames < 1):
         raise PipemapError(f"the number of frames must be a positive integer, got {frames!r}", key="frames")
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
@@ -71,6 +72,10 @@ def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, ro
         if texture not in STYLES:
             raise PipemapError(f"unknown wall texture {texture!r} (expected one of {', '.join(STYLES)})", key="texture")
         setup.appearance = replace(setup.appearance, texture_style=texture)
+    if specular is not None:
+        if not (isinstance(specular, (int, float, np.integer, np.floating)) and 0 <= specular < float("inf")):
+            raise PipemapError(f"the highlight's strength must be a number >= 0, got {specular!r}", key="specular")
+        setup.appearance = replace(setup.appearance, specular_strength=float(specular))
     if spacing_m is not None:
         if not spacing_m > 0:
             raise PipemapError(f"frame spacing must be positive, got {spacing_m}", key="spacing_m")
@@ -89,12 +94,14 @@ def plan(preset: str, *, width=None, height=None, frames=None, seed: int = 0, ro
 def simulate(preset: str, out: Path, *, width: int | None = None, height: int | None = None, frames: int | None = None,
              seed: int = 0, route: str | None = None, progress: Callable[[int, int], None] | None = None,
              spacing_m: float | None = None, motion_blur: int = 1, texture: str | None = None,
-             workers: int | None = None, effects: str | Path | dict | CameraEffects | None = None) -> Path:
+             workers: int | None = None, effects: str | Path | dict | CameraEffects | None = None,
+             specular: float | None = None) -> Path:
     """Render `preset` into the dataset folder `out` and return it.
 
     width/height: image size (intrinsics scale, field of view kept); frames: the first N frames
     of the route; seed: textures, wobble, speed and sensor noise; route: the preset's variant
-    (list_presets() names them); progress(i, n) after each frame; motion_blur: sub-frame renders
+    (list_presets() names them); progress(i, n) after each frame; specular: the wall highlight's strength
+    (None: the preset's, 0: a matte wall); motion_blur: sub-frame renders
     averaged per frame (1: none), spread over the motion since the previous frame; workers:
     rendering processes (None: one per available core for long runs). Every frame's noise is
     seeded by its index and the exposure is fixed before the workers start, so the images do not
@@ -116,7 +123,7 @@ def simulate(preset: str, out: Path, *, width: int | None = None, height: int | 
             info.writer(tmp, width=width, height=height, frames=frames, seed=seed, route=route, progress=progress)
         return out
     p = plan(preset, width=width, height=height, frames=frames, seed=seed, route=route, spacing_m=spacing_m,
-             texture=texture)
+             texture=texture, specular=specular)
     if not isinstance(motion_blur, (int, np.integer)) or motion_blur < 1:
         raise PipemapError(f"motion blur takes a number of sub-frames >= 1, got {motion_blur!r}", key="motion_blur")
     setup = p.setup
