@@ -102,7 +102,8 @@ class FrontendSettings(_Section):
         "flattened", description="what the anchor match compares: flattened (the flattened image, less each patch's "
         "mean) or log brightness less a plane or a quadratic in each patch's own coordinates (the robot's light "
         "taken out the same way however much the patch is stretched: old tracks' error about a third smaller, "
-        "route A's ATE 9.5 -> 6.2 mm, but its lap and a 30 deg sweeping bend turn too little; README)")
+        "route A's ATE 9.5 -> 6.2 mm with plane; but both turn a 30 deg sweeping bend too little, and quadratic "
+        "route A's lap; README)")
     anchor_max_stretch: float = Field(2.0, gt=1, description="a track ends once its patch is stretched (or shrunk) "
                                       "more than this along any direction since it was first seen: a corner first "
                                       "seen far down the pipe, foreshortened, places its point too loosely to be "
