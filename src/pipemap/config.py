@@ -91,6 +91,11 @@ class FrontendSettings(_Section):
     dark_level: float = Field(12.0, ge=0, description="no features where the local mean grey level is below this")
     contrast_limit: float = Field(16.0, ge=0, description="soft limit of the flattened image (64 x log units): "
                                   "rims of dark openings no longer outscore the wall's corners (0: off)")
+    saturation_level: float | None = Field(None, ge=0, description="grey level at and above which a pixel is "
+                                           "saturated: no corners within half a ZNCC patch of one, and a followed "
+                                           "feature that reaches one ends (None: off). The wall close under the "
+                                           "lights saturates; the edge of that region is set by the light and the "
+                                           "distance, not by the wall, and drags the matches along it")
     anchor_refine: bool = Field(True, description="re-locate continued tracks against their first appearance "
                                 "(affine Lucas-Kanade), so that their error does not grow with their length")
     anchor_max_shift_px: float = Field(1.5, gt=0, description="an anchor match farther than this from the ZNCC one is "

@@ -171,3 +171,27 @@ def test_a_frame_with_nothing_to_track_yields_no_keyframe(pipe_scene, tracker):
     blank = Frame(0, 0.0, np.full((240, 320), 255.0, np.float32))
     assert tracker.process(blank) == [] and tracker.finish() == []
 
+
+
+def test_no_corners_next_to_saturated_pixels(pipe_scene):
+    """`frontend.saturation_level`: a glare patch's edge is set by the light, not by the wall; corners within half a
+    ZNCC patch of it are not started (and followed features that reach it end at the next keyframe)."""
+    frame = pipe_scene.frames()[3]
+    image = frame.image.astype(np.float32).copy()
+    h, w = image.shape
+    image[h // 2 - 20:h // 2 + 20, w // 4 - 20:w // 4 + 20] = 255.0  # glare on the wall left of the centre
+    glare = Frame(frame.index, frame.timestamp, image)
+    near = {}
+    for level in (None, 250.0):
+        s = Settings()
+        s = s.model_copy(update={"frontend": s.frontend.model_copy(update={"saturation_level": level})})
+        tracker = FlowTracker(pipe_scene.camera, s.frontend)
+        _, _, corners = tracker.corners(glare)
+        margin = tracker.s.zncc_patch // 2 + 1
+        d = np.maximum(np.abs(corners[:, 0] - (w // 4 - 0.5)) - 20, np.abs(corners[:, 1] - (h // 2 - 0.5)) - 20)
+        near[level] = int(np.sum(d < margin))
+        if level is not None:
+            saturated = tracker.saturated(image)
+            assert saturated[h // 2, w // 4] and saturated[h // 2, w // 4 - 20 - margin + 1]
+            assert not saturated[h // 2, w // 4 - 20 - margin - 2] and not saturated[h // 4, 3 * w // 4]
+    assert near[None] > 0 and near[250.0] == 0

@@ -241,6 +241,10 @@ class FlowTracker(FeatureTracker):
         carried = None
         if s.anchor_refine:  # the anchor match first: RANSAC then sees each feature where its first patch is
             ok, positions, carried = self._anchor_flow(kf, image, rows, positions)
+            saturated = self.saturated(m.data.frame.image)
+            if saturated is not None:
+                at = np.clip(np.round(positions).astype(int), 0, [saturated.shape[1] - 1, saturated.shape[0] - 1])
+                ok &= ~saturated[at[:, 1], at[:, 0]]
             rows, positions, velocities, carried = rows[ok], positions[ok], velocities[ok], carried.take(ok)
         bearings, _ = self.camera.unproject(positions)
         bearings = bearings.reshape(-1, 3)

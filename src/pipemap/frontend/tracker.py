@@ -121,6 +121,9 @@ class FeatureTracker:
         if s.smooth_sigma_px > 0:
             raw = cv2.GaussianBlur(raw, (0, 0), s.smooth_sigma_px)
         image, mask = raw, self.mask
+        saturated = self.saturated(raw)
+        if saturated is not None:
+            mask = mask & ~saturated
         if s.flatten_lighting:
             image, lit = flatten_lighting(raw, s.lighting_sigma_px, s.dark_level, contrast_limit=s.contrast_limit)
             mask = mask & lit
@@ -128,6 +131,15 @@ class FeatureTracker:
                                    min_distance_px=s.min_distance_px, quality=s.harris_quality)
         anchor_image = image if s.anchor_lighting == "flattened" else log_brightness(raw)
         return image, anchor_image, points
+
+    def saturated(self, image: np.ndarray) -> np.ndarray | None:
+        """(H, W) bool: the pixels within half a ZNCC patch of a saturated one (`frontend.saturation_level`);
+        None when that is off."""
+        if self.s.saturation_level is None:
+            return None
+        at = (np.asarray(image) >= self.s.saturation_level).astype(np.uint8)
+        size = 2 * (self.s.zncc_patch // 2 + 1) + 1
+        return cv2.dilate(at, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))).astype(bool)
 
     def extract(self, frame: Frame) -> _Features:
         s = self.s
