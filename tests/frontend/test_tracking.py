@@ -191,7 +191,7 @@ def test_no_corners_next_to_saturated_pixels(pipe_scene):
         d = np.maximum(np.abs(corners[:, 0] - (w // 4 - 0.5)) - 20, np.abs(corners[:, 1] - (h // 2 - 0.5)) - 20)
         near[level] = int(np.sum(d < margin))
         if level is not None:
-            saturated = tracker.saturated(image)
+            saturated = tracker.saturated(glare)
             assert saturated[h // 2, w // 4] and saturated[h // 2, w // 4 - 20 - margin + 1]
             assert not saturated[h // 2, w // 4 - 20 - margin - 2] and not saturated[h // 4, 3 * w // 4]
     assert near[None] > 0 and near[250.0] == 0

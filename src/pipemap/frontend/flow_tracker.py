@@ -241,7 +241,7 @@ class FlowTracker(FeatureTracker):
         carried = None
         if s.anchor_refine:  # the anchor match first: RANSAC then sees each feature where its first patch is
             ok, positions, carried = self._anchor_flow(kf, image, rows, positions)
-            saturated = self.saturated(m.data.frame.image)
+            saturated = self.saturated(m.data.frame)
             if saturated is not None:
                 at = np.clip(np.round(positions).astype(int), 0, [saturated.shape[1] - 1, saturated.shape[0] - 1])
                 ok &= ~saturated[at[:, 1], at[:, 0]]

@@ -110,6 +110,7 @@ class FeatureTracker:
         self._lost = 0
         self._reference = 0
         self.brightness_terms = _BRIGHTNESS_TERMS[self.s.anchor_lighting]
+        self._saturated_of: tuple[int | None, np.ndarray | None] = (None, None)  # (frame index, its saturated mask)
 
     # -- per frame ------------------------------------------------------------------------
 
@@ -121,7 +122,7 @@ class FeatureTracker:
         if s.smooth_sigma_px > 0:
             raw = cv2.GaussianBlur(raw, (0, 0), s.smooth_sigma_px)
         image, mask = raw, self.mask
-        saturated = self.saturated(raw)
+        saturated = self.saturated(frame)
         if saturated is not None:
             mask = mask & ~saturated
         if s.flatten_lighting:
@@ -132,14 +133,17 @@ class FeatureTracker:
         anchor_image = image if s.anchor_lighting == "flattened" else log_brightness(raw)
         return image, anchor_image, points
 
-    def saturated(self, image: np.ndarray) -> np.ndarray | None:
-        """(H, W) bool: the pixels within half a ZNCC patch of a saturated one (`frontend.saturation_level`);
-        None when that is off."""
+    def saturated(self, frame: Frame) -> np.ndarray | None:
+        """(H, W) bool: the pixels of `frame` within half a ZNCC patch of a saturated one
+        (`frontend.saturation_level`); None when that is off. A keyframe asks twice (corners, followed features)."""
         if self.s.saturation_level is None:
             return None
-        at = (np.asarray(image) >= self.s.saturation_level).astype(np.uint8)
-        size = 2 * (self.s.zncc_patch // 2 + 1) + 1
-        return cv2.dilate(at, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))).astype(bool)
+        if self._saturated_of[0] != frame.index:
+            at = (np.asarray(frame.image) >= self.s.saturation_level).astype(np.uint8)
+            size = 2 * (self.s.zncc_patch // 2 + 1) + 1
+            grown = cv2.dilate(at, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))).astype(bool)
+            self._saturated_of = (frame.index, grown)
+        return self._saturated_of[1]
 
     def extract(self, frame: Frame) -> _Features:
         s = self.s
