@@ -107,9 +107,10 @@ def _brightness_basis(patch: int, terms: int) -> np.ndarray:
     return np.ascontiguousarray(q.T, np.float32)
 
 
-def _normalised(x: np.ndarray, basis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of x less their brightness terms (`basis`; None: the mean) at unit norm, and their norms before scaling."""
-    if basis is None or len(basis) == 1:
+def _normalised(x: np.ndarray, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of x less their brightness terms (`basis`, one row: the mean) at unit norm, and their norms before
+    scaling."""
+    if len(basis) == 1:  # the mean, as the flattened image has always been compared
         x = x - x.mean(axis=-1, keepdims=True)
     else:
         x = x - (x @ basis.T) @ basis
