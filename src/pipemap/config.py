@@ -75,6 +75,12 @@ class FrontendSettings(_Section):
     ransac_max_trials: int = Field(500, gt=0)
     track_threshold_factor: float = Field(2.0, gt=0, description="a match continues its track within this x the RANSAC "
                                                                  "threshold of the refined pose")
+    continue_on_refined_pose: bool = Field(False, description="flow front end: a followed feature continues its "
+                                           "track wherever the pose refined on RANSAC's inliers takes it (within "
+                                           "track_threshold_factor x the threshold), not only where RANSAC's own "
+                                           "pose counted it: H.264 tracks live longer and the tee loop turns "
+                                           "better, but clean route A's Table I and the junction networks lose "
+                                           "(README)")
     min_inliers: int = Field(15, gt=5, description="fewer pose inliers means the frame is not tracked")
     zncc_patch: int = Field(11, gt=2, description="side of the raw-image ZNCC template (px)")
     guided_search_px: int = Field(8, gt=0, description="half-size of the guided ZNCC window around the predicted "

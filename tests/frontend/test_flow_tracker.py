@@ -98,3 +98,56 @@ def test_a_robot_turning_back_is_followed_from_rest():
     followed = tracker._follow(back)
     moved = followed.positions - keyframe.keypoints[followed.rows]
     assert np.allclose(np.median(moved, axis=0), 3 * step, atol=0.05)
+
+
+def test_a_feature_continues_when_the_refined_pose_takes_it_though_ransac_did_not():
+    """With frontend.continue_on_refined_pose, tracks continue within track_threshold_factor x the RANSAC threshold
+    of the refined pose (as with descriptors), not only where RANSAC's own pose counted them: on compressed footage
+    that ended a tenth of the followed features every keyframe."""
+    from pipemap.frontend.flow_tracker import consistent_with_pose
+    from pipemap.frontend.relpose import essential_from_pose, estimate_relative_pose, refine_pose, sampson_angle
+    from pipemap.geometry.rotations import exp_so3
+
+    rng = np.random.default_rng(3)
+    n = 600
+    # wall points of a 0.2 m pipe ahead of the camera; the camera moves 2 cm on and turns 1 deg
+    h = rng.uniform(0.1, 1.5, n)
+    a = rng.uniform(0, 2 * np.pi, n)
+    X = np.stack([0.2 * np.cos(a), 0.2 * np.sin(a), h], axis=1)
+    R = exp_so3(np.radians([0.3, 1.0, 0.2]))
+    t_cam = np.array([0.001, 0.0, 0.02])
+    bi = X / np.linalg.norm(X, axis=1, keepdims=True)
+    Xj = (X - t_cam) @ R  # the second camera's frame: X_i = R X_j + t_cam
+    bj = Xj / np.linalg.norm(Xj, axis=1, keepdims=True)
+    threshold = np.radians(0.1)
+    # move a third of the features off their epipolar circles: 1.3-1.7 x and 2.5-3 x the threshold (Sampson)
+    E = essential_from_pose(*_pose_between(bi, bj))
+    normal = bi @ E.T  # E b_i: the epipolar circle's normal in the second view
+    normal -= np.sum(normal * bj, axis=1, keepdims=True) * bj
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    near, far = np.arange(0, 100), np.arange(100, 200)
+    want = np.zeros(n)
+    want[near] = rng.uniform(1.3, 1.7, len(near)) * threshold
+    want[far] = rng.uniform(2.5, 3.0, len(far)) * threshold
+    for _ in range(3):  # the Sampson error is about proportional to the move; settle the factor
+        s = sampson_angle(E, bi, bj)
+        moved = want > 0
+        step = np.where(moved, want - s, 0.0)
+        bj = bj + step[:, None] * normal * np.sqrt(2.0)
+        bj /= np.linalg.norm(bj, axis=1, keepdims=True)
+    s = sampson_angle(E, bi, bj)
+    assert np.allclose(s[near] / threshold, want[near] / threshold, atol=0.05)
+    pose = estimate_relative_pose(bi, bj, threshold, 0.999, np.random.default_rng(0), 500, refine=False)
+    assert not pose.inliers[near].any()  # RANSAC's pose counts none of the near ones ...
+    Rr, tr = refine_pose(pose.R, pose.t, bi[pose.inliers], bj[pose.inliers], threshold)
+    keep = consistent_with_pose(Rr, tr, bi, bj, 2.0 * threshold)
+    assert keep[near].all()  # ... the refined pose takes them all
+    assert not keep[far].any()
+    assert keep[200:].all()
+
+
+def _pose_between(bi: np.ndarray, bj: np.ndarray):
+    from pipemap.frontend.relpose import estimate_relative_pose
+
+    pose = estimate_relative_pose(bi, bj, np.radians(0.01), 0.999, np.random.default_rng(1), 500)
+    return pose.R, pose.t
