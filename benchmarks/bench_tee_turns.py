@@ -23,6 +23,11 @@ model) and for the map after it (`map`):
              blue_start); the loop's shape follows these.
   red_cam / blue_cam  the camera's heading against its section's end (start) cylinder at the last (first) keyframe.
 Table I: every distance between the tees' centres against the truth's, in % of it.
+Tracks: how many keyframes the front end's tracks span (mean; share reaching 3 and 6).
+
+--track-keyframes N cuts every track of the (cached) front end into pieces of at most N keyframes, each track's
+cuts at its own seeded phase, before the straight VO: what tracks as short-lived as compressed footage's do to the
+map, on a clean render's front end.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import hashlib
 import json
 import pickle
 from itertools import combinations
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +62,33 @@ def front_end(data: Path, cache: Path, settings):
 
 
 AFTER_VO = ("bundle.tee_", "evidence.", "loop_closure.")  # overrides of the stages after the straight VO
+
+
+def cut_tracks(front, keyframes: int, seed: int = 0):
+    """The front end with every track cut into pieces of at most `keyframes` keyframes (new consecutive ids)."""
+    rng = np.random.default_rng(seed)
+    first, phase, ids = {}, {}, {}
+    cut = []
+    for k, kf in enumerate(front.keyframes):
+        new = np.empty(len(kf.track_ids), np.int64)
+        for j, i in enumerate(np.asarray(kf.track_ids).tolist()):
+            if i not in first:
+                first[i], phase[i] = k, int(rng.integers(keyframes))
+            new[j] = ids.setdefault((i, (k - first[i] + phase[i]) // keyframes), len(ids))
+        cut.append(replace(kf, track_ids=new))
+    return replace(front, keyframes=cut)
+
+
+def track_spans(front) -> dict:
+    """Keyframes from each track's first observation to its last: mean, and the share reaching 3 and 6."""
+    first, last = {}, {}
+    for k, kf in enumerate(front.keyframes):
+        for i in np.asarray(kf.track_ids).tolist():
+            first.setdefault(i, k)
+            last[i] = k
+    span = np.array([last[i] - first[i] for i in first]) if first else np.zeros(1)
+    return {"mean": round(float(span.mean()), 3), "share_3": round(float(np.mean(span >= 3)), 3),
+            "share_6": round(float(np.mean(span >= 6)), 3)}
 
 
 def cached_vo(data: Path, cache: Path, front, dataset, settings, overrides: list[str]):
@@ -164,12 +197,16 @@ def table_one(truth: Truth, tees) -> list[dict]:
     return rows
 
 
-def measure(data: Path, cache: Path, overrides: list[str]) -> dict:
+def measure(data: Path, cache: Path, overrides: list[str], track_keyframes: int | None = None) -> dict:
     settings = load_settings(None, overrides)
     dataset = load_dataset(data)
     with threadpool_limits(1, user_api="blas"):
         front = front_end(data, cache, settings)
-        net = map_network(front, dataset, settings, cached_vo(data, cache, front, dataset, settings, overrides))
+        keyed = list(overrides)
+        if track_keyframes is not None:
+            front = cut_tracks(front, track_keyframes)
+            keyed.append(f"track_keyframes={track_keyframes}")
+        net = map_network(front, dataset, settings, cached_vo(data, cache, front, dataset, settings, keyed))
     truth = Truth(data, dataset.times()[net.straight.indices])
     poses = net.map.poses
     n = poses[0, :3, :3] @ truth.R[0].T @ truth.n  # the truth's normal as the first keyframe sees it
@@ -181,14 +218,19 @@ def measure(data: Path, cache: Path, overrides: list[str]) -> dict:
     for row, before in zip(tees, vo):
         row["vo"] = {"estimate": before["estimate"], "error": before["error"]}
     table = table_one(truth, net.tees)
-    return {"data": str(data), "overrides": overrides, "tees": tees, "table_one": table,
+    return {"data": str(data), "overrides": overrides, "track_keyframes": track_keyframes,
+            "tracks": track_spans(front), "tees": tees, "table_one": table,
             "sections": section_figures(truth, net.map.sections, net.junctions, poses, n),
             "table_one_max_pct": max((abs(r["error_pct"]) for r in table), default=None),
             "tee_solves": [r.to_dict() for r in net.joins]}
 
 
 def show(r: dict) -> None:
-    print(f"{r['data']} {' '.join(r['overrides'])}")
+    cut = "" if r["track_keyframes"] is None else f" tracks cut at {r['track_keyframes']} keyframes"
+    print(f"{r['data']} {' '.join(r['overrides'])}{cut}")
+    t = r["tracks"]
+    print(f"  tracks span {t['mean']:.2f} keyframes on average, {100 * t['share_3']:.1f} % reach 3, "
+          f"{100 * t['share_6']:.1f} % reach 6")
     keys = ["camera", "ends", "red_end", "blue_start", "full", "red_cam", "blue_cam"]
     print("  tee  " + "".join(f"{k:>11}" for k in keys) + "   (error, deg: map | vo)")
     for t in r["tees"]:
@@ -207,11 +249,15 @@ def main() -> None:
     ap.add_argument("data", type=Path, nargs="+")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/pipemap-tee-turns"))
     ap.add_argument("--set", action="append", default=[], help="settings override section.key=value (repeatable)")
+    ap.add_argument("--track-keyframes", type=int, default=None,
+                    help="cut every track into pieces of at most this many keyframes before the straight VO")
     ap.add_argument("--json-out", default=str(Path(__file__).parent / "results" / "tee_turns.json"))
     args = ap.parse_args()
+    if args.track_keyframes is not None and args.track_keyframes < 1:
+        ap.error("--track-keyframes must be at least 1")
     results = []
     for data in args.data:
-        r = measure(data, args.cache, args.set)
+        r = measure(data, args.cache, args.set, args.track_keyframes)
         show(r)
         results.append(r)
     Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
