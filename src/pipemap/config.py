@@ -74,7 +74,9 @@ class FrontendSettings(_Section):
                                                               "at the centre")
     ransac_max_trials: int = Field(500, gt=0)
     track_threshold_factor: float = Field(2.0, gt=0, description="a match continues its track within this x the RANSAC "
-                                                                 "threshold of the refined pose")
+                                                                 "threshold of the refined pose (the flow front end "
+                                                                 "also needs RANSAC's own pose to have counted it, "
+                                                                 "unless continue_on_refined_pose)")
     continue_on_refined_pose: bool = Field(False, description="flow front end: a followed feature continues its "
                                            "track wherever the pose refined on RANSAC's inliers takes it (within "
                                            "track_threshold_factor x the threshold), not only where RANSAC's own "

@@ -76,7 +76,7 @@ class _Followed:
 
 
 def consistent_with_pose(R: np.ndarray, t: np.ndarray, kf_bearings: np.ndarray, bearings: np.ndarray,
-                    limit: float) -> np.ndarray:
+                         limit: float) -> np.ndarray:
     """Which followed features are consistent with the pose refined on RANSAC's inliers: within `limit` (radians,
     Sampson). With `frontend.continue_on_refined_pose` they continue their tracks, as with descriptors; by default
     only those RANSAC's own pose counted as well (README, "Inspection footage": on H.264 the refined pose keeps
