@@ -151,3 +151,40 @@ def _pose_between(bi: np.ndarray, bj: np.ndarray):
 
     pose = estimate_relative_pose(bi, bj, np.radians(0.01), 0.999, np.random.default_rng(1), 500)
     return pose.R, pose.t
+
+
+@pytest.mark.parametrize("on", [False, True])
+def test_the_setting_decides_whether_features_ransac_left_out_continue(monkeypatch, on):
+    """The keyframe promotion itself: features RANSAC's pose leaves out continue their tracks only with
+    frontend.continue_on_refined_pose (RANSAC here made to leave out every fifth of its inliers)."""
+    from dataclasses import replace
+
+    import pipemap.frontend.flow_tracker as flow_tracker
+    from pipemap.config import FrontendSettings
+
+    real = flow_tracker.estimate_relative_pose
+    counted = {}
+
+    def ransac_leaving_some_out(bi, bj, *args, **kwargs):
+        pose = real(bi, bj, *args, **kwargs)
+        keep = pose.inliers.copy()
+        keep[::5] = False  # RANSAC's own pose leaves out every fifth feature of its inliers
+        counted["left_out"] = int(pose.inliers.sum() - keep.sum())
+        counted["kept"] = int(keep.sum())
+        return replace(pose, inliers=keep)
+
+    monkeypatch.setattr(flow_tracker, "estimate_relative_pose", ransac_leaving_some_out)
+    camera = fisheye_camera(640, 480)
+    tracker = FlowTracker(camera, FrontendSettings(continue_on_refined_pose=on))
+    image = _texture(640, 480)
+    [first] = tracker.process(Frame(0, 0.0, image))
+    made = []
+    for i in range(1, 8):  # 2 px a frame: a keyframe once the median flow passes 10 px
+        made += tracker.process(Frame(i, 0.1 * i, _shifted(image, 2.0 * i, 0.0)))
+    assert made, "no keyframe was made"
+    continued = int(made[0].inliers.sum())
+    assert counted["left_out"] > 50
+    if on:  # the refined pose takes most of those RANSAC left out
+        assert continued > counted["kept"] + 0.8 * counted["left_out"]
+    else:
+        assert continued <= counted["kept"]
