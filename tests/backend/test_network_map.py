@@ -158,3 +158,28 @@ def test_wall_pieces_stop_where_an_elbow_bends():
     tee = MappedJunction("T1", np.zeros(3), 15, 10, 19, 0, 2, 90.0, "tee-model")
     pieces = {p["name"]: p for p in wall_pieces([before, after], [tee], [0, 0, 1.0])}
     np.testing.assert_allclose(pieces["S0"]["end"], [0, 0, 0], atol=1e-6)
+
+
+def test_a_section_driven_there_and_back_gets_its_cylinder():
+    """The robot drives 1.8 m along the pipe and back to 6 cm from where it began: the section's extent is the
+    farthest it went, not the 6 cm between its first and last keyframes (that chord once left the section without
+    a cylinder). Measured: axis 0.0015 deg and 0.03 mm off the truth (0.5 mm point noise)."""
+    rng = np.random.default_rng(4)
+    s = np.r_[np.arange(0.0, 1.8, 0.02), np.arange(1.8, 0.05, -0.02)]
+    poses = np.tile(np.eye(4), (len(s), 1, 1))
+    poses[:, :3, :3] = look_rotation(np.array([1.0, 0, 0]), np.array([0, 0, -1.0]))
+    poses[:, 0, 3] = s
+    phi, h = rng.uniform(0, 2 * np.pi, 3000), rng.uniform(-0.3, 2.1, 3000)
+    points = np.column_stack([h, R * np.cos(phi), R * np.sin(phi)]) + rng.normal(0, 0.0005, (3000, 3))
+    tids = np.arange(len(points))
+    kfs = []
+    for k in range(len(s)):
+        seen = tids[np.linalg.norm(points - poses[k, :3, 3], axis=1) < 0.6]
+        kfs.append(Keyframe(k, k, k / 7.5, np.zeros((len(seen), 2)), np.zeros((len(seen), 3)), seen,
+                            np.ones(len(seen), bool), np.zeros(len(seen), bool), np.eye(3), np.zeros(3), True))
+    (m,) = map_sections([SectionReport(0, 0, len(s) - 1, "cylinder")], kfs, poses, points, tids, R)
+    assert m.problems == [] and m.cylinder is not None
+    tilt = np.degrees(np.arccos(min(1.0, abs(m.cylinder.direction @ [1.0, 0, 0]))))
+    o = m.cylinder.origin - m.cylinder.axial(np.zeros((1, 3)))[0] * m.cylinder.direction  # the axis at x = 0
+    assert tilt < 0.02 and np.abs(o[1:]).max() < 0.0005
+    assert m.start_h is not None and abs((m.end_h - m.start_h) - s[-1]) < 0.002

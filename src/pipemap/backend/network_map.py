@@ -112,8 +112,15 @@ def section_points(keyframes: list[Keyframe], first: int, last: int, tids: np.nd
     return pos[ok]
 
 
+def _chord(centres: np.ndarray) -> np.ndarray:
+    """The camera path's extent along the pipe: from its first centre to the centre farthest from it. A robot
+    that drives on and comes back ends near where it began, so its last centre says nothing of how far it went."""
+    far = int(np.argmax(np.linalg.norm(centres - centres[0], axis=1)))
+    return centres[far] - centres[0]
+
+
 def _fit(points: np.ndarray, centres: np.ndarray, R_ref, c_ref, radius: float, huber: float) -> CylinderFit | None:
-    direction = centres[-1] - centres[0]
+    direction = _chord(centres)
     if len(points) < 20 or np.linalg.norm(direction) < 2 * radius * 0.25:
         return None
     try:
@@ -173,13 +180,14 @@ def _fit_bend(cyl: Cylinder, points: np.ndarray, huber: float, knot_m: float, ki
 
 
 def _near_path(points: np.ndarray, centres: np.ndarray, margin: float) -> np.ndarray:
-    """Points whose projection on the path's chord falls within the chord (+- margin)."""
-    d = centres[-1] - centres[0]
+    """Points whose projection on the path's chord (`_chord`) falls within the centres' (+- margin)."""
+    d = _chord(centres)
     L = np.linalg.norm(d)
     if L <= 0:
         return np.zeros(len(points), bool)
+    along = (centres - centres[0]) @ (d / L)
     s = (points - centres[0]) @ (d / L)
-    return (s > -margin) & (s < L + margin)
+    return (s > min(along.min(), 0.0) - margin) & (s < max(along.max(), L) + margin)
 
 
 def map_sections(sections, keyframes: list[Keyframe], poses: np.ndarray, points: np.ndarray, tids: np.ndarray,
