@@ -153,7 +153,9 @@ class ClassificationSettings(_Section):
                                    "the images do not show (frontend/turning.py; a crawler's wobble is about 1 deg); "
                                    "None: images only")
     turn_window_keyframes: int = Field(20, ge=2, description="keyframes over which the turn is measured (keyframes "
-                                       "are spaced by image flow, about a fixed fraction of the pipe radius apart)")
+                                       "are spaced by image flow, about a fixed fraction of the pipe radius apart), "
+                                       "at the default frontend.keyframe_min_flow_px: keyframes made further apart "
+                                       "take proportionally fewer, the same length of pipe (pipeline.turn_window)")
 
 
 class BundleSettings(_Section):

@@ -255,7 +255,19 @@ def straight_vo(front: FrontEndResult, dataset: Dataset, settings: Settings) -> 
 def keyframe_classes(settings: Settings) -> KeyframeClasses:
     """The keyframes' section classes: the images' (filtered) and the turns of bends they missed."""
     c = settings.classification
-    return KeyframeClasses(c.min_cluster_keyframes, c.turn_deg, c.turn_window_keyframes)
+    return KeyframeClasses(c.min_cluster_keyframes, c.turn_deg, turn_window(settings))
+
+
+def turn_window(settings: Settings) -> int:
+    """classification.turn_window_keyframes at the run's keyframe spacing. It is given at the default
+    frontend.keyframe_min_flow_px; keyframes made further apart cover the same length of pipe in fewer. At twice the
+    spacing the unscaled window reached past the 12 keyframes of straight pipe after elbow-cross A's sweeping bend to
+    the end of the route, and the bend became a tee placed from the path (Table I 6-10 %)."""
+    c, f = settings.classification, settings.frontend
+    default = type(f).model_fields["keyframe_min_flow_px"].default
+    if f.keyframe_min_flow_px <= 0:  # every frame a keyframe: the window as given
+        return c.turn_window_keyframes
+    return max(2, int(round(c.turn_window_keyframes * default / f.keyframe_min_flow_px)))
 
 
 def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings,

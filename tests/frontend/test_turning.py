@@ -61,3 +61,27 @@ def test_a_short_run_next_to_a_classified_junction():
     classified = np.zeros(30, bool)
     classified[12] = True
     assert not turning_keyframes(_keyframes(yaw, np.random.default_rng(4)), 20, 4.0, classified).any()
+
+
+def test_the_turn_window_spans_the_same_pipe_at_any_keyframe_spacing():
+    """Elbow-cross A's end as keyframes every 20 px of flow (twice the default's) make it: a classified 45 deg
+    elbow, 18 keyframes of straight pipe, a sweeping 30 deg bend over 45 keyframes and 12 keyframes of straight
+    pipe to the end of the route. The window given for the default spacing (20 keyframes) reaches from the bend
+    to the route's end, so the bend swallows the straight pipe after it; scaled to the spacing (10) it does not."""
+    from pipemap.config import Settings
+    from pipemap.pipeline import turn_window
+
+    yaw = np.zeros(185)
+    yaw[100:110] = 4.5
+    yaw[128:173] = 30.0 / 45
+    classified = np.zeros(185, bool)
+    classified[100:110] = True
+    settings = Settings()
+    assert turn_window(settings) == settings.classification.turn_window_keyframes == 20
+    settings.frontend.keyframe_min_flow_px *= 2
+    window = turn_window(settings)
+    assert window == 10
+    kfs = _keyframes(yaw, np.random.default_rng(5))
+    scaled = turning_keyframes(kfs, window, 4.0, classified)
+    assert scaled[128:173].all() and not scaled[:120].any() and not scaled[178:].any()  # measured: 123-176
+    assert turning_keyframes(kfs, 20, 4.0, classified)[178:].all()  # measured: 130-184
