@@ -304,7 +304,7 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings,
     pipe_map = fit_elbow_bends(pipe_map, dataset.radius_m, settings)
     pipe_map, dropped = weigh_junction_evidence(pipe_map, settings)
     revisit = RevisitReport("no revisit" if settings.loop_closure.enabled else "disabled")
-    if settings.loop_closure.enabled and len(pipe_map.junctions) > 1:
+    if settings.loop_closure.enabled:  # a pipe is revisited past junctions or by reversing in it
         def image_of(k: int) -> np.ndarray:
             return dataset.read(vo.keyframes[k].index).image
 

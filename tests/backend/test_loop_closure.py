@@ -303,3 +303,27 @@ def test_reanchor_moves_points_with_their_pose():
     np.testing.assert_allclose(moved, np.einsum("nij,nj->ni", after[:, :3, :3], X_cam) + after[:, :3, 3], atol=1e-12)
     one = reanchor(X, before[0], after[0])
     np.testing.assert_allclose(one[0], moved[0], atol=1e-12)
+
+
+def test_a_section_driven_there_and_back_is_two_visits_of_its_pipe():
+    """A crawler drives 4.3 m along a pipe and reverses to 0.1 m (no junction): its one section splits into two
+    legs at the turn, and the legs pair up where they overlap, as two visits of a pipe past its tees do. A step
+    back shorter than loop_closure.min_overlap_m (a stop and a jolt) does not split a leg."""
+    from pipemap.backend.revisit import section_legs
+
+    lc = LoopClosureSettings()
+    h = np.r_[np.linspace(0.0, 4.3, 88), np.linspace(4.28, 0.1, 78)]
+    P = np.column_stack([0.001 * np.sin(h), np.zeros_like(h), h])
+    axis = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    assert section_legs(P, *axis, lc.min_overlap_m) == [(0, 87), (88, 165)]
+    jolt = np.r_[np.linspace(0.0, 2.0, 40), [1.9, 1.85], np.linspace(1.9, 3.0, 20)]
+    assert section_legs(np.column_stack([0 * jolt, 0 * jolt, jolt]), *axis, lc.min_overlap_m) == [(0, 61)]
+    back_first = np.r_[np.linspace(0.0, -2.0, 40), np.linspace(-1.9, 0.5, 40), np.linspace(0.4, -1.0, 20)]
+    assert section_legs(np.column_stack([0 * back_first] * 2 + [back_first]), *axis,
+                        lc.min_overlap_m) == [(0, 39), (40, 79), (80, 99)]
+    poses = np.tile(np.eye(4), (len(h), 1, 1))
+    poses[:, :3, 3] = P
+    legs = [StraightSection(a, b, *axis) for a, b in section_legs(P, *axis, lc.min_overlap_m)]
+    pairs = loop_candidates(legs, [], poses, 0.2, lc)
+    assert len(pairs) == lc.candidates_per_section
+    assert all(c.i <= 87 < c.j and abs(P[c.i, 2] - P[c.j, 2]) < lc.pairing_tolerance_m for c in pairs)

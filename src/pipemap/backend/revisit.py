@@ -43,9 +43,16 @@ def close_network_loops(pipe_map: PipeMap, camera: CameraModel, image_of: Callab
     if not settings.loop_closure.enabled:
         return pipe_map, RevisitReport("disabled")
     usable = [m for m in pipe_map.sections if m.cylinder is not None]
-    index = {m.number: i for i, m in enumerate(usable)}
-    lc_sections = [StraightSection(m.first, m.last, m.cylinder.origin, m.cylinder.direction) for m in usable]
-    lc_junctions = [TeeJunction(j.centroid, tuple(index[n] for n in (j.before, j.after) if n in index))
+    positions = pipe_map.poses[:, :3, 3]
+    lc_sections: list[StraightSection] = []
+    ends: dict[int, tuple[int, int]] = {}  # section number: its first and last leg among lc_sections
+    for m in usable:
+        legs = section_legs(positions[m.first:m.last + 1], m.cylinder.origin, m.cylinder.direction,
+                            settings.loop_closure.min_overlap_m)
+        ends[m.number] = (len(lc_sections), len(lc_sections) + len(legs) - 1)
+        lc_sections += [StraightSection(m.first + a, m.first + b, m.cylinder.origin, m.cylinder.direction)
+                        for a, b in legs]
+    lc_junctions = [TeeJunction(j.centroid, tuple(ends[n][k] for n, k in ((j.before, 1), (j.after, 0)) if n in ends))
                     for j in pipe_map.junctions]
     extra = junction_identity_edges(pipe_map, radius, settings.loop_closure) if settings.loop_closure.junction_edges \
         else []
@@ -62,4 +69,26 @@ def close_network_loops(pipe_map: PipeMap, camera: CameraModel, image_of: Callab
                               sum(res.seconds.values()), res.summary())
 
 
-__all__ = ["RevisitReport", "close_network_loops"]
+def section_legs(positions: np.ndarray, origin: np.ndarray, direction: np.ndarray, turn_back_m: float
+                 ) -> list[tuple[int, int]]:
+    """(first, last) rows of `positions` (a section's keyframes, in order) driven one way along the axis: a leg
+    ends where the robot turns back and then goes more than `turn_back_m` the other way. A crawler that reverses
+    to look again visits its pipe twice within one section; each leg is then a visit the loop closure can pair
+    with the others (the same wall seen from the same side, so its images match)."""
+    h = (np.asarray(positions, float) - origin) @ direction
+    legs, start, way, turn = [], 0, 0, 0
+    for i in range(1, len(h)):
+        if way == 0:  # which way this leg goes: once it is more than turn_back_m from its start
+            way = int(np.sign(h[i] - h[start])) if abs(h[i] - h[start]) > turn_back_m else 0
+            turn = i
+        elif way * (h[i] - h[turn]) > 0:
+            turn = i
+        elif way * (h[turn] - h[i]) > turn_back_m:
+            legs.append((start, turn))
+            start, way = turn + 1, -way
+            turn = int(start + np.argmax(way * h[start:i + 1]))
+    legs.append((start, len(h) - 1))
+    return legs
+
+
+__all__ = ["RevisitReport", "close_network_loops", "section_legs"]
