@@ -284,7 +284,9 @@ class LoopClosureSettings(_Section):
                                           "(distinct parallel pipes are at least 2 apart)")
     same_junction_radii: float = Field(2.0, gt=0, description="a tee pass within this many radii of an earlier "
                                        "tee's centre is a revisit of it (one entry in junctions.yaml)")
-    min_overlap_m: float = Field(0.2, ge=0, description="... and overlap along the axis by at least this much")
+    min_overlap_m: float = Field(0.2, ge=0, description="... and overlap along the axis by at least this much; "
+                                 "a crawler that goes back more than this within a section starts a second visit "
+                                 "of its pipe (backend/revisit.section_legs)")
     pairing_tolerance_m: float = Field(0.03, gt=0, description="a pair's distances to the tee, l_i and l_j, "
                                        "differ by less than this")
     # Relative pose of a pair (what the paper leaves open).
