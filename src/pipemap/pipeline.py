@@ -152,7 +152,7 @@ def track_and_classify(dataset: Dataset, settings: Settings,
     tracker = make_tracker(dataset.camera, settings.frontend, settings.seed, mask.usable)
     classifier = SequenceClassifier(dataset.camera, classification_for(dataset.camera, settings.classification,
                                                                      settings.frontend.reference_px_per_deg),
-                                    mask.usable)
+                                    mask.view)
     total = len(dataset)
     keyframes: list[Keyframe] = []
     done = 0
@@ -447,7 +447,7 @@ def write_wall_maps(folder: Path, dataset: Dataset, front: FrontEndResult, net: 
             stage("appearance")
             maps = write_maps(folder, dataset, net.straight.indices, net.map.poses,
                               [piece_from_dict(d) for d in net.wall_pieces], settings,
-                              usable=None if front.mask is None else front.mask.usable, route=net.route)
+                              usable=None if front.mask is None else front.mask.view, route=net.route)
         if sparse is None:
             return maps, deformation
         stage("deformation")

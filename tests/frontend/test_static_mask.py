@@ -56,3 +56,29 @@ def test_a_wall_without_overlay_is_not_masked():
 
 def test_too_few_frames_tell_nothing():
     assert find_static_mask(_frames(5, 7.0), np.ones((H, W), np.uint8), 4.0) is None
+
+
+def _ringed(frames, radius: float = 70.0, step: float = 0.92):
+    """`frames` whose rim beyond `radius` px from the image centre is dim and smoothed by the codec, the light
+    falling off by a step where it starts: a quantised ramp, which stays put like an overlay but is wall."""
+    yy, xx = np.mgrid[0:H, 0:W]
+    r = np.hypot(xx - W / 2, yy - H / 2)
+    smooth, outer = r > radius - 12, r > radius
+    for img in frames:
+        img = img.copy()
+        img[smooth] = 120 + 0.05 * (img[smooth] - 120)
+        img[outer] *= step
+        yield img
+
+
+def test_a_ring_of_the_light_is_kept_out_of_features_but_not_out_of_view():
+    yy, xx = np.mgrid[0:H, 0:W]
+    ring = np.abs(np.hypot(xx - W / 2, yy - H / 2) - 70.0) < 2
+    ring &= ~cv2.dilate(_text_box().astype(np.uint8), np.ones((25, 25), np.uint8)).astype(bool)
+    m = find_static_mask(_ringed(_frames(40, 7.0)), np.ones((H, W), np.uint8), 4.0, grow_px=4,
+                         centre=(W / 2, H / 2))
+    assert m.rings >= 1
+    assert (~m.usable[ring]).mean() > 0.9  # features stay off the ring
+    assert m.view[ring].mean() > 0.99  # classification and maps see the wall there
+    assert len(m.regions) >= 1 and all(y < 40 for _, y, *_ in m.regions)  # only the text is an overlay
+    assert not m.view[_text_box()].all()

@@ -17,10 +17,15 @@ from pipemap.frontend.static_mask import StaticMask, find_static_mask
 
 @dataclass(frozen=True)
 class UsableMask:
-    usable: np.ndarray | None  # (H, W) bool, or None: every pixel of the camera's image
+    usable: np.ndarray | None  # (H, W) bool, or None: every pixel of the camera's image (features, matching)
     given: bool  # the dataset has a user's mask
     static: StaticMask | None  # what the footage showed, when looked for
     note: str  # why no static mask was used, if none
+    view: np.ndarray | None = None  # ... the pixels that show the wall (classification, maps): the light's rings are
+
+    def __post_init__(self):
+        if self.view is None:
+            object.__setattr__(self, "view", self.usable)
 
     def to_dict(self) -> dict:
         return {"given": self.given,
@@ -44,15 +49,16 @@ def usable_mask(dataset: Dataset, settings: Settings) -> UsableMask:
     given = dataset.mask
     s = frontend_for(dataset.camera, fe)
     margin = max(s.template_window, s.zncc_patch) // 2 + 1  # no feature's patch reaches into a masked pixel
-    usable = None
+    usable = view = None
     if given is not None:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
-        usable = cv2.erode(given.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1) > 0
+        usable = view = cv2.erode(given.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1) > 0
     static, note = None, "off (frontend.static_mask_frames = 0)"
     if fe.static_mask_frames > 0:
         inside = valid_mask(dataset.camera, margin)
+        centre = dataset.camera.project(np.array([0.0, 0.0, 1.0]))[0]  # the light's rings centre on the axis
         found = find_static_mask(_sample(dataset, fe.static_mask_frames), inside, s.lighting_sigma_px,
-                                 grow_px=margin)
+                                 grow_px=margin, centre=(float(centre[0]), float(centre[1])))
         if found is None:
             note = "too few frames to tell what moves"
         elif found.masked_fraction > fe.static_mask_max_fraction:
@@ -62,4 +68,5 @@ def usable_mask(dataset: Dataset, settings: Settings) -> UsableMask:
         else:
             static, note = found, ""
             usable = found.usable if usable is None else usable & found.usable
-    return UsableMask(usable, given is not None, static, note)
+            view = found.view if view is None else view & found.view
+    return UsableMask(usable, given is not None, static, note, view)
