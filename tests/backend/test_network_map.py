@@ -81,6 +81,28 @@ def test_tee_centre_from_end_cylinders():
     assert tee.to_dict()["type"] == "tee" and n1 <= tee.keyframe < n2
 
 
+def test_a_flicker_of_straight_pipe_inside_a_junction_is_one_pass():
+    """A forward camera sees the tee ahead, then the far end round again for a keyframe, then the tee: the
+    junction frames come in two runs with one straight keyframe between, too short for a cylinder. Taken one
+    by one each run has a straight section on one side only and its centre follows the camera path (two tees,
+    one of them half a metre before the real one); taken as one pass the tee model's axes place it."""
+    poses, points, tids, kfs = _l_shaped_run(np.random.default_rng(2))
+    sections = [SectionReport(0, 0, 64, "cylinder"),
+                SectionReport(1, 65, 66, "cylinder", kind="junction", linked=True),
+                SectionReport(2, 67, 67, "cylinder", linked=True),
+                SectionReport(3, 68, 99, "cylinder", kind="junction", linked=True),
+                SectionReport(4, 100, len(poses) - 1, "cylinder", linked=True)]
+    mapped = map_sections(sections, kfs, poses, points, tids, R, length_m=1.0)
+    (tee,) = map_junctions(sections, mapped, poses)
+    assert (tee.first, tee.last, tee.before, tee.after, tee.method) == (65, 99, 0, 4, "axes")
+    assert np.linalg.norm(tee.centroid - [2.0, 0, 0]) < 0.002
+    # a straight section with a cylinder between them keeps two passes
+    sections[2] = SectionReport(2, 67, 89, "cylinder", linked=True)
+    sections[3] = SectionReport(3, 90, 99, "cylinder", kind="junction", linked=True)
+    mapped = map_sections(sections, kfs, poses, points, tids, R, length_m=1.0)
+    assert len(map_junctions(sections, mapped, poses)) == 2
+
+
 def test_junction_at_the_end_of_the_run_uses_the_path():
     poses, points, tids, kfs = _l_shaped_run(np.random.default_rng(1))
     sections = [SectionReport(0, 0, 89, "cylinder"), SectionReport(1, 90, len(poses) - 1, "cylinder",

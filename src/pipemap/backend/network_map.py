@@ -12,7 +12,10 @@ T-intersection) lies between two straight sections; its centre I is where the en
 before it and the start cylinder after it meet (the two-cylinder model's intersection point, the
 closest approach of the two axes). When the two axes are nearly parallel the robot went straight
 through the tee and the axes do not fix I along the pipe: I is then the junction keyframes' mean
-camera centre, projected onto the axis.
+camera centre, projected onto the axis. Two junction sections with only a straight section too short
+for a cylinder between them are one pass: the classification flickered there (a forward camera sees
+the tee ahead, the far end round again for a few frames, then the tee), and each of the two halves
+would have had a straight section on one side only, its centre left to the camera path.
 """
 
 from __future__ import annotations
@@ -248,16 +251,23 @@ def map_junctions(sections, mapped: list[MappedSection], poses: np.ndarray) -> l
     by_number = {m.number: m for m in mapped}
     centres = poses[:, :3, 3]
     out: list[MappedJunction] = []
-    for i, sec in enumerate(sections):
+    i = -1
+    while i + 1 < len(sections):
+        i += 1
+        sec = sections[i]
         if sec.kind != "junction":
             continue
         prev = sections[i - 1] if i > 0 and sec.linked else None
+        first, last = sec.first, sec.last
+        while _no_cylinder_between(sections, i, by_number):
+            i += 2
+            last = sections[i].last
         nxt = sections[i + 1] if i + 1 < len(sections) and sections[i + 1].linked else None
         before = by_number.get(prev.number) if prev is not None else None
         after = by_number.get(nxt.number) if nxt is not None else None
         a = before.end if before is not None else None
         b = after.start if after is not None else None
-        path_centre = centres[sec.first:sec.last + 1].mean(axis=0)
+        path_centre = centres[first:last + 1].mean(axis=0)
         angle, gap = float("nan"), float("nan")
         if a is not None and b is not None:
             centroid, gap, angle = axes_meeting_point(a, b)
@@ -271,11 +281,22 @@ def map_junctions(sections, mapped: list[MappedSection], poses: np.ndarray) -> l
             method = "path"
         else:
             centroid, method = path_centre, "path"
-        k = sec.first + int(np.argmin(np.linalg.norm(centres[sec.first:sec.last + 1] - centroid, axis=1)))
-        out.append(MappedJunction(f"T{len(out) + 1}", np.asarray(centroid, float), k, sec.first, sec.last,
+        k = first + int(np.argmin(np.linalg.norm(centres[first:last + 1] - centroid, axis=1)))
+        out.append(MappedJunction(f"T{len(out) + 1}", np.asarray(centroid, float), k, first, last,
                                   None if before is None else before.number, None if after is None else after.number,
                                   angle, method, gap))
     return out
+
+
+def _no_cylinder_between(sections, i: int, by_number: dict) -> bool:
+    """Whether junction section i is followed, with tracking unbroken, by a straight section that got no
+    cylinder and then by another junction section: one pass (module docstring)."""
+    if i + 2 >= len(sections):
+        return False
+    mid, nxt = sections[i + 1], sections[i + 2]
+    m = by_number.get(mid.number)
+    return (mid.kind == "straight" and nxt.kind == "junction" and mid.linked and nxt.linked
+            and (m is None or m.cylinder is None))
 
 
 __all__ = ["MappedSection", "MappedJunction", "map_sections", "map_junctions", "axes_meeting_point", "wall_pieces",
