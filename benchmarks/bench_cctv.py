@@ -1,10 +1,14 @@
 """A sewer crawler's forward-looking CCTV camera through the network pipeline: tee loop and straight pipe.
 
-    python benchmarks/bench_cctv.py [--seeds 1 2] [--sizes 640x480 720x576] [--cases loop straight]
-                                    [--data /tmp/pipemap-bench] [--out /tmp/pipemap-bench/runs]
+    python benchmarks/bench_cctv.py [--seeds 1 2] [--sizes 640x480 720x576] [--cases loop straight loop-B]
+                                    [--effects clean cctv-h264 cctv-mjpeg] [--data /tmp/pipemap-bench]
+                                    [--out /tmp/pipemap-bench/runs]
 
 The camera: 100 deg across the image, barrel distortion, a ring of LEDs round the lens, the robot
-rolling and pitching up to 1 deg (presets cctv-loop and cctv-straight). For each seed and image size,
+rolling and pitching up to 1 deg (presets cctv-loop and cctv-straight; loop-B: the loop's route B, which
+starts half a metre before a tee it approaches head-on, and ends past its start). `--effects`: the
+footage as clean frames or through a camera-effects profile (H.264 or MJPEG with overlay, gain drift and
+steps, repeated and dropped frames). For each seed, image size and effects,
 renders the preset once (cached under --data), runs `pipemap run --method auto` in a child process
 (its wall time and peak memory are its own; auto must choose the network pipeline) and evaluates the
 result with no scale alignment: every tee-centre distance (Table I), the ATE as a share of the path
@@ -25,17 +29,20 @@ from bench_network import run_case, show
 from pipemap.evaluation import evaluate
 from pipemap.sim.simulate import simulate
 
-PRESETS = {"loop": ("cctv-loop", "A"), "straight": ("cctv-straight", "forward")}
+PRESETS = {"loop": ("cctv-loop", "A"), "straight": ("cctv-straight", "forward"), "loop-B": ("cctv-loop", "B")}
+DEFAULT_CASES = ["loop", "straight"]
 
 
-def dataset(args, case: str, size: str, seed: int) -> Path:
+def dataset(args, case: str, size: str, seed: int, effects: str = "clean") -> Path:
     preset, route = PRESETS[case]
     width, height = (int(v) for v in size.split("x"))
-    root = Path(args.data) / f"{preset}-{route}-{size}-s{seed}"
+    tag = "" if effects == "clean" else f"-{effects}"
+    root = Path(args.data) / f"{preset}-{route}-{size}{tag}-s{seed}"
     if not (root / "dataset.yaml").exists():
         shutil.rmtree(root, ignore_errors=True)
         root.parent.mkdir(parents=True, exist_ok=True)
-        simulate(preset, root, width=width, height=height, route=route, seed=seed, workers=2)
+        simulate(preset, root, width=width, height=height, route=route, seed=seed, workers=2,
+                 effects=None if effects == "clean" else effects)
     return root
 
 
@@ -43,7 +50,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--sizes", nargs="+", default=["640x480", "720x576"])
-    ap.add_argument("--cases", nargs="+", default=list(PRESETS), choices=list(PRESETS))
+    ap.add_argument("--cases", nargs="+", default=DEFAULT_CASES, choices=list(PRESETS))
+    ap.add_argument("--effects", nargs="+", default=["clean"], help="clean or a camera-effects profile")
     ap.add_argument("--data", default="/tmp/pipemap-bench")
     ap.add_argument("--out", default="/tmp/pipemap-bench/runs")
     ap.add_argument("--json-out", default=str(Path(__file__).parent / "results" / "cctv.json"))
@@ -51,9 +59,9 @@ def main() -> None:
     results: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "runs": {}}
     for case in args.cases:
         for size in args.sizes:
-            for seed in args.seeds:
-                data = dataset(args, case, size, seed)
-                name = f"{case}-{size}-s{seed}"
+            for seed, effects in ((s, e) for e in args.effects for s in args.seeds):
+                data = dataset(args, case, size, seed, effects)
+                name = f"{case}-{size}{'' if effects == 'clean' else '-' + effects}-s{seed}"
                 r = run_case(data, Path(args.out) / f"cctv-{name}", [], method="auto")
                 m = evaluate(Path(args.out) / f"cctv-{name}", data)
                 if m.distance is not None:

@@ -110,6 +110,8 @@ def show(name: str, r: dict) -> None:
               + f"  (max |error| {r['table_i_max_abs_pct']:.3f} %)")
     if r["sections"]:
         print("   sections: " + ", ".join(f"{s['section']}: {s['error_pct']:+.3f} %" for s in r["sections"]))
+    if r.get("junctions"):
+        print(f"   junctions: {r['junctions']['estimated']} found, {r['junctions']['truth']} true")
     for p in r["problems"]:
         print(f"   problem: {p}")
 

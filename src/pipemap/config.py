@@ -131,8 +131,8 @@ class FrontendSettings(_Section):
                                               "track began it lags most just after (H.264 CRF 28: -0.074, -0.048, "
                                               "-0.034 px along the motion at the 2nd, 3rd, 4th observation; "
                                               "bench_exact_observations.py); at the default keyframe_min_flow_px, "
-                                              "keyframes made further apart take proportionally fewer "
-                                              "(pipeline.settling_keyframes)")
+                                              "keyframes made further apart take proportionally fewer; only for "
+                                              "a camera that sees the wall beside it (pipeline.settling_keyframes)")
     settling_codecs: list[str] = Field(["h264"], description="the video codecs (FFmpeg's names) that "
                                        "predicted_settling_keyframes applies to: measured on fisheye-straight, H.264 "
                                        "at CRF 28 went from -0.088 / -0.073 % (forward / reverse) to -0.040 / "

@@ -62,3 +62,15 @@ def test_the_settling_keyframes_cover_the_same_pictures_at_any_keyframe_spacing(
     assert settling_keyframes(s, "h264") == 4
     s.frontend.keyframe_min_flow_px = 0.0  # every frame a keyframe
     assert settling_keyframes(s, "h264") == 2
+
+
+def test_the_settling_filter_is_for_a_camera_that_sees_the_wall_beside_it():
+    """A forward CCTV camera sees each piece of wall over few keyframes and its scale rests on them: its H.264
+    footage keeps every observation (cctv-recording's reverse leg 0.64 % off with the filter, 0.03 % without)."""
+    from pipemap.config import Settings
+    from pipemap.pipeline import settling_keyframes
+    from pipemap.sim.presets import cctv_camera, fisheye_camera
+
+    s = Settings()
+    assert settling_keyframes(s, "h264", fisheye_camera(640, 480)) == 2
+    assert settling_keyframes(s, "h264", cctv_camera(640, 480)) == 0
