@@ -36,8 +36,8 @@ class StaticMask:
     static: np.ndarray  # (H, W) bool: the static structure found, before growing
     frames: int  # frames it was found from
     regions: list[tuple[int, int, int, int]]  # bounding boxes (x, y, w, h) of the static regions
-    view: np.ndarray | None = None  # (H, W) bool: ... less the light's rings, which are wall (classification, maps)
-    rings: int = 0  # regions that are rings of the light's fall-off
+    view: np.ndarray  # (H, W) bool: `usable` and the light's rings, which are wall (classification, maps)
+    rings: int  # regions that are rings of the light's fall-off
 
     @property
     def masked_fraction(self) -> float:

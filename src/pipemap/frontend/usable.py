@@ -21,11 +21,7 @@ class UsableMask:
     given: bool  # the dataset has a user's mask
     static: StaticMask | None  # what the footage showed, when looked for
     note: str  # why no static mask was used, if none
-    view: np.ndarray | None = None  # ... the pixels that show the wall (classification, maps): the light's rings are
-
-    def __post_init__(self):
-        if self.view is None:
-            object.__setattr__(self, "view", self.usable)
+    view: np.ndarray | None  # the pixels that show the wall (classification, maps): `usable` and the light's rings
 
     def to_dict(self) -> dict:
         return {"given": self.given,
