@@ -42,6 +42,7 @@ from pipemap.backend.revisit import RevisitReport, close_network_loops
 from pipemap.backend.sparse_ply import write_sparse_ply
 from pipemap.backend.section_vo import StraightResult, StraightVO
 from pipemap.backend.straight_beside import StraightVOBeside
+from pipemap.camera import CameraModel
 from pipemap.config import Settings
 from pipemap.dataset import Dataset, load_dataset
 from pipemap.errors import PipemapError
@@ -264,7 +265,7 @@ def turn_window(settings: Settings) -> int:
     return at_keyframe_spacing(settings.classification.turn_window_keyframes, settings.frontend, least=2)
 
 
-def settling_keyframes(settings: Settings, codec: str | None, camera=None) -> int:
+def settling_keyframes(settings: Settings, codec: str | None, camera: CameraModel | None = None) -> int:
     """frontend.predicted_settling_keyframes at the run's keyframe spacing, on a codec it applies to and a camera
     that sees the wall beside it (else 0): the lag dies away with the pictures predicted since a track's patch was
     cut, and with keyframes twice as far apart a track's second observation is as many pictures on as its third at
@@ -274,7 +275,7 @@ def settling_keyframes(settings: Settings, codec: str | None, camera=None) -> in
     lost the scale (cctv-loop route B seeds 1 / 2 Table I 1.73 / 2.29 %, without it 0.41 / 0.22 %; cctv-recording
     seed 5 forward / reverse 0.112 / 0.641 %, without it 0.037 / 0.030 %)."""
     f = settings.frontend
-    if codec not in f.settling_codecs or (camera is not None and camera.view_colatitudes()[1] < np.pi / 2):
+    if codec not in f.settling_codecs or (camera is not None and not camera.sees_beside()):
         return 0
     return at_keyframe_spacing(f.predicted_settling_keyframes, f, least=0)
 

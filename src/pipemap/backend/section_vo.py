@@ -156,7 +156,7 @@ class StraightVO:
         # trade rotation for sideways steps and a chained scale that slips: its keyframes are resected and its
         # scale watched. A fisheye needs neither, and both cost it (paper-loop route A: Table I 0.15 -> 0.30 %
         # with resection; compressed footage set the drift check off every few keyframes).
-        narrow = camera.view_colatitudes()[1] < np.pi / 2
+        narrow = not camera.sees_beside()
         self._drift_check = self.s.scale_drift is not None and narrow
         self._resection = self.s.resection_min_points is not None and narrow
         self._resected = False  # the newest keyframe's pose was refined against its scene points (or resection is off)

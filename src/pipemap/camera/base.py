@@ -96,6 +96,11 @@ class CameraModel(ABC):
             self._view_key, self._view = key, (float(reach.min()), float(reach.max()))
         return self._view
 
+    def sees_beside(self) -> bool:
+        """Whether the image holds the wall beside the camera (colatitude 90 deg) in some direction: a fisheye
+        does, a forward perspective camera sees the pipe only ahead."""
+        return self.view_colatitudes()[1] >= np.pi / 2
+
     def param_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in zip(self.param_names, self.params)}
 
