@@ -165,3 +165,29 @@ def test_fixed_share_holds_the_oldest_part_of_the_overlap(runs, tmp_path):
     assert held == [max(int(round(0.5 * f)), 1) if f > 1 else f for f in full]
     m = evaluate(every.out_dir, data, write=False)
     assert abs(m.distance.forward.abs_error_pct) < 1.0
+
+
+def test_a_recording_with_no_readable_frame_is_one_clear_line(tmp_path):
+    """Every image damaged: `pipemap run` says so in one line, exits non-zero and writes no result folder."""
+    from typer.testing import CliRunner
+
+    from pipemap.cli import app
+
+    data = tmp_path / "broken"
+    (data / "images").mkdir(parents=True)
+    for k in range(3):
+        (data / "images" / f"{k:06d}.png").write_bytes(b"not a png")
+    (data / "dataset.yaml").write_text("""format: pipemap-dataset/1
+images: images/*.png
+fps: 7.5
+pipe: {radius_m: 0.15}
+camera:
+  model: pinhole
+  width: 640
+  height: 480
+  params: {fx: 400, fy: 400, cx: 319.5, cy: 239.5, k1: 0, k2: 0, p1: 0, p2: 0, k3: 0}
+""")
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["run", str(data), "--out", str(out)])
+    assert res.exit_code != 0 and "no frame could be read" in res.output
+    assert "Traceback" not in res.output and not out.exists()

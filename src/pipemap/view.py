@@ -108,6 +108,9 @@ def camera_view(dataset: Dataset, settings: Settings | None = None) -> ViewRepor
             break
     keyframes += tracker.finish()
     direction, steps = travel_direction(keyframes)
+    if frames == 0:
+        raise PipemapError("no frame could be read: every one tried is damaged or not an image (`pipemap info` "
+                           "counts the readable ones)", dataset.root)
     if steps == 0:
         raise PipemapError(f"cannot tell which way the camera looks: no camera motion could be tracked in the first "
                            f"{frames} frames; choose a method with --method", dataset.root)
