@@ -57,6 +57,7 @@ def test_result_folder_follows_formats(runs):
     assert run["settings"]["bundle"]["tau"] == 2.5e5
     assert {"frontend", "straight_relative", "straight_windows", "write"} <= set(run["seconds"])
     assert run["sections"][0]["scale"] == "cylinder" and run["lost_keyframes"] == 0
+    assert run["refused_poses"] == run["continued_poses"] == 0  # clean frames: RANSAC's poses are the motion
     ply = PlyData.read(str(out / "sparse.ply"))
     assert not ply.text and ply["vertex"]["x"].dtype == np.float32
     assert len(ply["vertex"]) == run["points"] > 1000

@@ -73,6 +73,20 @@ class FrontendSettings(_Section):
     ransac_threshold_px: float = Field(0.7, gt=0, description="angular inlier threshold is at least this many pixels "
                                                               "at the centre")
     ransac_max_trials: int = Field(500, gt=0)
+    rotation_check_factor: float | None = Field(1.5, gt=0, description="a relative pose whose rotation is further "
+                                                "than this x its inliers' angular motion (90th percentile) plus "
+                                                "rotation_check_slack_deg from the rotation that best turns them onto "
+                                                "each other is refused as a wrong solution (frontend/relpose.py "
+                                                "rotation_fits_motion; None: off)")
+    rotation_check_slack_deg: float = Field(1.0, ge=0, description="see rotation_check_factor")
+    continued_motion_share: float | None = Field(0.8, gt=0, description="where the previous relative pose, "
+                                                 "refined on a keyframe's pairs, is another solution than RANSAC's "
+                                                 "but keeps at least this share of its inliers, it is the pose: the "
+                                                 "pairs cannot tell them apart and a crawler drives on smoothly "
+                                                 "(frontend/relpose.py continued_motion; None: off)")
+    continued_motion_apart_deg: float = Field(1.0, gt=0, description="the refined previous pose is another "
+                                              "solution when its rotation is this far from RANSAC's or its "
+                                              "translation ten times this")
     track_threshold_factor: float = Field(2.0, gt=0, description="a match continues its track within this x the RANSAC "
                                                                  "threshold of the refined pose (the flow front end "
                                                                  "also needs RANSAC's own pose to have counted it, "
@@ -251,6 +265,10 @@ class StraightVOSettings(_Section):
     beside_tracking: bool = Field(True, description="run in a second process while the front end tracks, fed "
                                   "each keyframe once its class is final (the same result; not in a batch's "
                                   "runs, whose workers keep every core busy already)")
+    tail_image_step: float | None = Field(1.6, gt=1, description="the rescale of a window's not yet solved "
+                                          "keyframes is refused when it takes their steps further than this "
+                                          "factor (and further than before) from the steps their features' image "
+                                          "motion shows (section_vo._steps_agree; None: off)")
     min_window_points: int = Field(30, gt=0, description="fewer points: no window solve")
     min_window_keyframes: int = Field(3, gt=1)
     max_colatitude_deg: float | None = Field(70.0, gt=0, le=180, description="window observations beyond this angle "
@@ -587,6 +605,11 @@ class QualitySettings(_Section):
                                              "given radius, relative difference: suspect, failed (a scale "
                                              "problem)")
     min_free_radius_points: int = Field(30, gt=0, description="fewer triangulated points: no free radius")
+    image_step: tuple[float, float] = Field((1.6, 2.5), description="the factor (either way) between a straight "
+                                            "section's keyframe steps and the steps its features' image motion "
+                                            "shows (median over a stretch of image_step_keyframes): suspect, "
+                                            "failed (frontend/image_steps.py: a scale that shrank with its points)")
+    image_step_keyframes: int = Field(10, ge=3, description="keyframes of a stretch of that comparison")
     tracked_share: tuple[float, float] = Field((0.5, 0.25), description="a section's median fraction of the "
                                                "previous keyframe's features tracked on, as a share of the run's "
                                                "median (the lens sets the usual value): suspect below the first, "

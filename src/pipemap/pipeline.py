@@ -78,6 +78,8 @@ class FrontEndResult:
     mask: UsableMask | None = None  # the pixels that move with the wall
     stats: FrameStats | None = None  # lighting and texture of the frames read
     bends: np.ndarray | None = None  # keyframes classed junction for a bend's turn alone, when classed while tracking
+    refused_poses: int = 0  # relative poses refused for a rotation their inliers' motion cannot have made
+    continued_poses: int = 0  # RANSAC poses replaced by the previous motion continued
 
 
 @dataclass
@@ -215,7 +217,8 @@ def track_and_classify(dataset: Dataset, settings: Settings,
                "extract": timing["extract"]}
     log.predicted, log.settling_left_out = dataset.predicted, settle.left_out
     return FrontEndResult(keyframes, classifier.result(), done, seconds, log, mask, stats,
-                          None if classes is None else classes.bends)
+                          None if classes is None else classes.bends, tracker.refused_poses,
+                          tracker.continued_poses)
 
 
 def section_bend(settings: Settings) -> tuple[float, float, float, float] | None:
@@ -386,6 +389,8 @@ def write_results(folder: Path, dataset: Dataset, front: FrontEndResult, net: Ne
         mask=None if front.mask is None else front.mask.to_dict(),
         points=len(net.map.points),
         lost_keyframes=sum(1 for s in result.sections[1:] if not s.linked),
+        refused_poses=front.refused_poses,
+        continued_poses=front.continued_poses,
         sections=[s.to_dict() for s in result.sections],
         straight_sections=[m.to_dict() for m in net.sections],
         junction_passes=[dict(j.pass_record(), method=j.method, angle_deg=round(j.angle_deg, 3),

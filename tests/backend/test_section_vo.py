@@ -256,3 +256,83 @@ def test_a_sections_final_window_can_wait_for_the_keyframes_after_it(straight_ru
     # measured: 75 mdeg when the window ends with the section, 25 when it waits (the descriptor front end: 145, 62)
     assert _turn_error_mdeg(ds, at_end, 15, end) > 60
     assert _turn_error_mdeg(ds, waited, 15, end) < 40
+
+
+def _tail_state(tail_turn_deg: float, tail_scale: float):
+    """A StraightVO whose keyframes 0-20 a window solved (cameras on the axis of a pipe along z, 5 cm apart, their
+    points on its wall) and whose keyframes 21-40 were chained since, turned by `tail_turn_deg` and scaled by
+    `tail_scale` about camera 20 with the points they triangulated: (vo, track ids, true tail camera centres)."""
+    from pipemap.camera.pinhole import PinholeCamera
+    from pipemap.geometry.rotations import exp_so3
+
+    rng = np.random.default_rng(0)
+    camera = PinholeCamera(320, 240, dict(fx=180.0, fy=180.0, cx=159.5, cy=119.5, k1=0, k2=0, p1=0, p2=0, k3=0))
+    vo = StraightVO(camera, 0.15, load_settings())
+    vo._grow(599)
+    c = np.c_[np.zeros(41), np.zeros(41), 0.05 * np.arange(41)]
+    phi = rng.uniform(0, 2 * np.pi, 600)
+    z = np.where(np.arange(600) < 300, rng.uniform(0.2, 1.2, 600), rng.uniform(1.2, 2.5, 600))
+    X = np.c_[0.15 * np.cos(phi), 0.15 * np.sin(phi), z]
+    first = np.where(np.arange(600) < 300, rng.integers(0, 21, 600), rng.integers(21, 41, 600))
+    turn = exp_so3(np.radians([tail_turn_deg, 0.0, 0.0]))
+    o = c[20]
+    tail = first > 20
+    X[tail] = o + tail_scale * (X[tail] - o) @ turn.T
+    vo._X[:600], vo._has[:600], vo._first_kf[:600] = X, True, first
+    vo.c = [o + tail_scale * turn @ (ck - o) if k > 20 else ck.copy() for k, ck in enumerate(c)]
+    vo.R = [turn if k > 20 else np.eye(3) for k in range(41)]
+    vo._solved_until = 20
+    vo.keyframes = _seen_from(c, np.c_[0.15 * np.cos(phi), 0.15 * np.sin(phi), z])
+    return vo, np.arange(600), c
+
+
+def _seen_from(centres, X):
+    """Keyframes of cameras at `centres` looking along +z: exact bearings of the points X within 50 deg, track
+    ids their rows."""
+    from pipemap.frontend.tracks import Keyframe
+
+    out = []
+    for k, c in enumerate(centres):
+        d = X - c
+        b = d / np.linalg.norm(d, axis=1, keepdims=True)
+        seen = np.flatnonzero(b[:, 2] > np.cos(np.radians(50.0)))
+        t = np.zeros(3) if k == 0 else np.array([0.0, 0.0, -1.0])
+        out.append(Keyframe(k, k, float(k), np.zeros((len(seen), 2)), b[seen], seen, np.full(len(seen), k > 0),
+                            np.zeros(len(seen), bool), np.eye(3), t, True))
+    return out
+
+
+def test_a_tail_that_turned_is_turned_back_onto_the_solved_wall():
+    """Poor relative rotations turned the unsolved keyframes' wall 6 deg off the solved one: no scale puts their
+    points on it (the best one had halved a CCTV run's steps); turned back about the last solved camera, they
+    lie on it at their own scale."""
+    vo, tids, truth = _tail_state(6.0, 1.0)
+    f, turned = vo._rescale_tail(tids, 0, 40, np.eye(3), truth[0])
+    assert turned == pytest.approx(6.0, abs=0.3)
+    assert f == pytest.approx(1.0, abs=0.02)
+    assert np.linalg.norm(vo.c[40] - truth[40]) < 0.02  # 1 m beyond the solved part
+    assert np.allclose(vo.R[40], np.eye(3), atol=np.radians(0.3))
+
+
+def test_a_tail_that_only_slipped_is_rescaled_not_turned():
+    vo, tids, truth = _tail_state(0.0, 0.7)
+    f, turned = vo._rescale_tail(tids, 0, 40, np.eye(3), truth[0])
+    assert turned == 0.0
+    assert f == pytest.approx(1 / 0.7, rel=0.01)
+    assert np.linalg.norm(vo.c[40] - truth[40]) < 0.01
+
+
+def test_a_tail_whose_points_left_the_wall_keeps_the_steps_its_images_show():
+    """The tail's steps are right, as its images' motion shows them, but the points it triangulated lie twice as far
+    from the axis (poor tracks): the scale that puts them on the wall would halve the steps, and is refused."""
+    vo, tids, truth = _tail_state(0.0, 1.0)
+    tail = vo._first_kf[:600] > 20
+    o = truth[20]
+    vo._X[:600][tail] = o + (vo._X[:600][tail] - o) * np.array([2.0, 2.0, 1.0])
+    f, turned = vo._rescale_tail(tids, 0, 40, np.eye(3), truth[0])
+    assert (f, turned) == (1.0, 0.0)
+    assert np.allclose(np.stack(vo.c), truth)
+    vo, tids, truth = _tail_state(0.0, 1.0)
+    vo._X[:600][tail] = o + (vo._X[:600][tail] - o) * np.array([2.0, 2.0, 1.0])
+    vo.s = vo.s.model_copy(update={"tail_image_step": None})
+    assert vo._rescale_tail(tids, 0, 40, np.eye(3), truth[0])[0] == pytest.approx(0.5, rel=0.05)

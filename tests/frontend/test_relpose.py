@@ -4,11 +4,13 @@ import numpy as np
 import pytest
 
 from pipemap.frontend.relpose import (
+    continued_motion,
     decompose_essential,
     essential_from_pose,
     estimate_relative_pose,
     five_point,
     refine_pose,
+    rotation_fits_motion,
     sampson_angle,
     signed_sampson,
 )
@@ -127,3 +129,81 @@ def test_refine_pose_recovers_the_pose_from_a_perturbed_start():
     # 300 pairs at 0.02 deg: the pose to a few thousandths of a degree, the direction to under a hundredth
     assert np.degrees(rotation_angle(R_est @ R.T)) < 0.005
     assert angle_deg(t_est, t) < 0.015
+
+
+def _pipe_views(R_cw0, motion, turn, half_fov_deg, n=400, seed=0, radius=0.15):
+    """Bearings of wall points of a pipe along z (radius `radius`) seen from a camera turned by R_cw0 (camera
+    to world) at the origin and from one moved by `motion` (world) and turned further by `turn` (camera frame):
+    (R, bearings_i, bearings_j) with X_j = R X_i + t, only points within `half_fov_deg` of both optical axes."""
+    rng = np.random.default_rng(seed)
+    phi, z = rng.uniform(0, 2 * np.pi, 20 * n), rng.uniform(-3.0, 3.0, 20 * n)
+    X = np.c_[radius * np.cos(phi), radius * np.sin(phi), z]
+    R_cw1 = R_cw0 @ turn.T
+    Xi = (X @ R_cw0)  # world -> camera 0: R_cw0^T X
+    Xj = (X - motion) @ R_cw1
+    bi = Xi / np.linalg.norm(Xi, axis=1, keepdims=True)
+    bj = Xj / np.linalg.norm(Xj, axis=1, keepdims=True)
+    inside = (bi[:, 2] > np.cos(np.radians(half_fov_deg))) & (bj[:, 2] > np.cos(np.radians(half_fov_deg)))
+    bi, bj = bi[inside][:n], bj[inside][:n]
+    return R_cw1.T @ R_cw0, bi, bj
+
+
+FORWARD = np.eye(3)  # optical axis along the pipe
+SIDEWAYS = exp_so3(np.array([0.0, np.pi / 2, 0.0]))  # optical axis square to the pipe, at its wall
+
+
+@pytest.mark.parametrize("R_cw0, motion, turn, half_fov", [
+    (FORWARD, [0, 0, 0.05], np.eye(3), 50.0),  # a CCTV camera driving on
+    (FORWARD, [0, 0, 0.05], exp_so3(np.radians([0.0, 5.0, 0.0])), 50.0),  # in a bend
+    (FORWARD, [0, 0, 0.02], exp_so3(np.radians([0.0, 0.0, 3.0])), 12.5),  # a narrow lens rolling
+    (SIDEWAYS, [0, 0, 0.03], np.eye(3), 50.0),  # looking at the wall while driving past it: flow as if turned
+    (FORWARD, [0, 0, 0.05], np.eye(3), 95.0),  # a fisheye
+])
+def test_a_true_pose_fits_the_motion_of_its_bearings(R_cw0, motion, turn, half_fov):
+    R, bi, bj = _pipe_views(R_cw0, np.asarray(motion, float), turn, half_fov)
+    assert len(bi) > 50
+    assert rotation_fits_motion(R, bi, bj, factor=1.5, slack_deg=1.0)
+
+
+def test_a_pose_turned_past_what_its_bearings_moved_is_refused():
+    """The far end of the pipe only (bearings within 8 deg of the axis, as a CCTV camera's inliers were on
+    compressed 320x240 footage): a pose turned 20 deg, whose epipolar lines such a cone cannot tell apart."""
+    R, bi, bj = _pipe_views(FORWARD, np.array([0, 0, 0.05]), np.eye(3), 8.0)
+    assert len(bi) > 20
+    assert rotation_fits_motion(R, bi, bj, factor=1.5, slack_deg=1.0)
+    for axis in np.eye(3):
+        wrong = exp_so3(np.radians(20.0) * axis) @ R
+        assert not rotation_fits_motion(wrong, bi, bj, factor=1.5, slack_deg=1.0)
+    # a 3 deg error on an 8 deg cone that moved by about a degree is still within the slack's reach
+    moved = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", bi, bj), -1, 1)))
+    bound = 1.5 * np.percentile(moved, 90) + 1.0
+    assert rotation_fits_motion(exp_so3(np.radians(0.9 * bound) * np.eye(3)[0]) @ R, bi, bj, 1.5, 1.0)
+    assert not rotation_fits_motion(exp_so3(np.radians(1.1 * bound) * np.eye(3)[0]) @ R, bi, bj, 1.5, 1.0)
+
+
+def test_the_previous_motion_continues_where_the_pairs_cannot_tell_it_from_ransacs_pose():
+    """The far end's cone of bearings only: RANSAC's pose turned 7 deg with its translation off the axis fits the
+    pairs as a wide field's would not; the straight drive before, refined on the same pairs, keeps them all."""
+    R, bi, bj = _pipe_views(FORWARD, np.array([0, 0, 0.05]), np.eye(3), 8.0)
+    t = np.array([0.0, 0.0, -1.0])  # X_j = R X_i + t: the camera drove along +z
+    wrong_R = exp_so3(np.radians([7.0, 0.0, 0.0])) @ R
+    wrong_t = np.array([-0.78, 0.46, -0.43]) / np.linalg.norm([-0.78, 0.46, -0.43])
+    some = np.zeros(len(bi), bool)
+    some[: int(0.9 * len(bi))] = True  # RANSAC's pose counted a few more pairs than the truth keeps below
+    prior_R = exp_so3(np.radians([0.3, -0.2, 0.1]))  # the keyframe before drove on, turning a little
+    found = continued_motion(wrong_R, wrong_t, some, prior_R, t, bi, bj, np.radians(0.05), 0.8, 1.0)
+    assert found is not None
+    R_found, t_found, inliers = found
+    assert rotation_angle(R_found @ R.T) < np.radians(0.2)
+    assert angle_deg(t_found, t) < 3.0
+    assert inliers.mean() > 0.95
+
+
+def test_a_wide_view_settles_the_pose_itself():
+    """Bearings all round a fisheye: the previous motion (a turn of 5 deg) refined on the pairs comes back to
+    RANSAC's straight drive, which stays."""
+    R, bi, bj = _pipe_views(FORWARD, np.array([0, 0, 0.05]), np.eye(3), 95.0)
+    t = np.array([0.0, 0.0, -1.0])
+    everything = np.ones(len(bi), bool)
+    prior_R = exp_so3(np.radians([0.0, 5.0, 0.0]))
+    assert continued_motion(R, t, everything, prior_R, t, bi, bj, np.radians(0.05), 0.8, 1.0) is None

@@ -85,3 +85,16 @@ def test_the_turn_window_spans_the_same_pipe_at_any_keyframe_spacing():
     scaled = turning_keyframes(kfs, window, 4.0, classified)
     assert scaled[128:173].all() and not scaled[:120].any() and not scaled[178:].any()  # measured: 123-176
     assert turning_keyframes(kfs, 20, 4.0, classified)[178:].all()  # measured: 130-184
+
+
+def test_two_wrong_poses_in_a_straight_pipe_make_no_bend():
+    """A straight pipe whose chained directions keep two relative poses turned 3 deg by mistake (320x240 H.264
+    CCTV footage): the window over both turns 6 deg, past the threshold, but all of it in two steps."""
+    yaw = np.zeros(120)
+    yaw[50], yaw[56] = 3.0, 3.0
+    kfs = _keyframes(yaw, np.random.default_rng(6))
+    assert not turning_keyframes(kfs, 20, 4.0).any()
+    # the same 6 deg spread over eight keyframes is a bend
+    yaw = np.zeros(120)
+    yaw[50:58] = 0.75
+    assert turning_keyframes(_keyframes(yaw, np.random.default_rng(6)), 20, 4.0)[50:58].all()

@@ -49,7 +49,9 @@ from pipemap.config import Settings
 from pipemap.frontend.angular import pixel_angle
 from pipemap.frontend.tracks import Keyframe
 from pipemap.geometry.cylinder import fit_cylinder
+from pipemap.geometry.rotations import exp_so3, log_so3
 from pipemap.geometry.se3 import world_to_camera
+from pipemap.frontend.image_steps import image_step
 
 
 @dataclass
@@ -67,6 +69,7 @@ class WindowReport:
     rescale: float  # the rescale applied before this solve: the section's by its free radius (first window), or
     # the not yet solved keyframes' so that their points meet the wall of the solved ones
     step_scale: float  # mean keyframe step length in the window after the solve over before it
+    tail_turn_deg: float = 0.0  # how far the not yet solved keyframes were turned onto the solved wall first
 
     def to_dict(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items()}
@@ -113,6 +116,9 @@ class SpentKeyframe:
     index: int
     timestamp: float
 
+
+# A tail turned onto the solved wall must cut its points' misfit to this share of the best scale alone's.
+TAIL_TURN_GAIN = 0.5
 
 # Keyframes beyond the window kept whole, besides the window itself (a window reaches `bundle.window` back).
 SPENT_MARGIN = 5
@@ -377,41 +383,99 @@ class StraightVO:
         tids = self._section_points()
         self._X[tids] = o + f * (self._X[tids] - o)
 
-    def _rescale_tail(self, uniq: np.ndarray, first: int, last: int, R0: np.ndarray, c0: np.ndarray) -> float:
+    def _rescale_tail(self, uniq: np.ndarray, first: int, last: int, R0: np.ndarray,
+                      c0: np.ndarray) -> tuple[float, float]:
         """Scale the keyframes no window has solved yet, and the points they triangulated, about the last
-        solved camera so that those points meet the wall of the solved part; returns the factor.
+        solved camera so that those points meet the wall of the solved part; returns the factor and the
+        angle (deg) they were turned by (below).
 
         Between windows the relative scale is chained from step to step; a camera looking along the pipe
         can let it slip by tenths over a window's 50 keyframes (cctv-loop: 0.6). Its points then lie well
         inside the wall, the window's cylinder fit takes them for outliers, and the solve keeps the slip.
-        The first window rescales a whole section by its free radius for the same reason."""
+        The first window rescales a whole section by its free radius for the same reason.
+
+        The chain can turn as well as slip: where its relative rotations are poor (320x240 H.264 CCTV
+        footage: 0.5-1.7 deg a keyframe) the unsolved keyframes' own wall ran 6 deg off the solved one, so
+        that no scale put their points on it and the best one halved the steps (the straight pipe 21 %
+        short; the solve kept it). So the tail is also turned about the last solved camera until its own
+        wall's axis runs along the solved one, and scaled again: kept where its points miss the wall by more
+        than the Huber threshold and the turn at least halves that (TAIL_TURN_GAIN), which a tail that only
+        slipped does not."""
         held_until = self._solved_until
         if not first <= held_until < last:
-            return 1.0
+            return 1.0, 0.0
         tail = self._first_kf[uniq] > held_until
         if tail.sum() < self.s.min_window_points or (~tail).sum() < self.s.min_window_points:
-            return 1.0
+            return 1.0, 0.0
         try:
             fit = fit_cylinder(self._X[uniq[~tail]], self.radius, reference=(R0, c0),
                                direction=self.c[held_until] - c0, huber=self.b.huber_m)
         except (ValueError, np.linalg.LinAlgError):
-            return 1.0
+            return 1.0, 0.0
         o = self.c[held_until].copy()
         X = self._X[uniq[tail]] - o
 
-        def misfit(f: float) -> float:
-            return float(np.median(np.abs(fit.cylinder.distance(o + f * X))))
+        def misfit(turn: np.ndarray, f: float) -> float:
+            return float(np.median(np.abs(fit.cylinder.distance(o + f * X @ turn.T))))
 
-        best = minimize_scalar(misfit, bounds=(0.25, 4.0), method="bounded", options={"xatol": 1e-4})
-        f = float(best.x)
-        if not misfit(f) < misfit(1.0):
-            return 1.0
+        def best_scale(turn: np.ndarray) -> float:
+            return float(minimize_scalar(lambda f: misfit(turn, f), bounds=(0.25, 4.0), method="bounded",
+                                         options={"xatol": 1e-4}).x)
+
+        turn, f = np.eye(3), best_scale(np.eye(3))
+        if not misfit(turn, f) < misfit(turn, 1.0):
+            f = 1.0
+        # a tail whose points already meet the wall within the Huber threshold has nothing to turn
+        own = None if misfit(turn, f) <= self.b.huber_m else self._tail_turn(uniq[tail], fit.cylinder.direction,
+                                                                              held_until, last)
+        if own is not None:
+            g = best_scale(own)
+            if misfit(own, g) < TAIL_TURN_GAIN * misfit(turn, f):
+                turn, f = own, g
+        if f == 1.0 and turn is not own:
+            return 1.0, 0.0
+        if not self._steps_agree(held_until, last, f):
+            return 1.0, 0.0
         for k in range(held_until + 1, last + 1):
-            self.c[k] = o + f * (self.c[k] - o)
+            self.c[k] = o + f * turn @ (self.c[k] - o)
+            self.R[k] = turn @ self.R[k]
         tids = self._section_points()
         later = tids[self._first_kf[tids] > held_until]
-        self._X[later] = o + f * (self._X[later] - o)
-        return f
+        self._X[later] = o + f * (self._X[later] - o) @ turn.T
+        return f, float(np.degrees(np.linalg.norm(log_so3(turn))))
+
+    def _steps_agree(self, held_until: int, last: int, f: float) -> bool:
+        """Whether scaling keyframes held_until+1..last by `f` leaves their steps near those their features' image
+        motion shows (frontend/image_steps.py): within `straight_vo.tail_image_step` either way, or nearer than
+        before. The tail's points can lie anywhere when its relative poses are poor, and the scale that put them
+        on the wall had shrunk a CCTV run at 320x240 as H.264 to 0.25 of its steps, window after window."""
+        limit = self.s.tail_image_step
+        if limit is None:
+            return True
+        ratios = []
+        for k in range(held_until + 1, last + 1):
+            seen = image_step(self.keyframes[k - 1], self.keyframes[k], self.radius)
+            made = float(np.linalg.norm(self.c[k] - self.c[k - 1]))
+            if np.isfinite(seen) and seen > 0 and made > 0:
+                ratios.append(made / seen)
+        if len(ratios) < self.s.min_window_keyframes:
+            return True
+        before = abs(np.log(np.median(ratios)))
+        return abs(np.log(np.median(ratios) * f)) <= max(before, np.log(limit))
+
+    def _tail_turn(self, tids: np.ndarray, axis: np.ndarray, held_until: int, last: int) -> np.ndarray | None:
+        """The rotation that turns the axis of the wall the points `tids` lie on (a cylinder of free radius
+        fitted to them) onto `axis`, or None when none fits."""
+        try:
+            own = fit_cylinder(self._X[tids], self.radius, direction=self.c[last] - self.c[held_until],
+                               huber=self.b.huber_m)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+        a = np.asarray(axis, float) / np.linalg.norm(axis)
+        b = np.asarray(own.cylinder.direction, float) / np.linalg.norm(own.cylinder.direction)
+        b = b if a @ b >= 0 else -b
+        v = np.cross(b, a)
+        return exp_so3(v / max(np.linalg.norm(v), 1e-12) * np.arctan2(np.linalg.norm(v), float(a @ b)))
 
     def _solve_window(self, sec: SectionReport, last: int) -> None:
         """Solve the window of straight section `sec` that ends at keyframe `last` (after the section's own last
@@ -430,7 +494,8 @@ class StraightVO:
         scaled = self._window_cylinder(uniq, first, last, R, wall, sec.last)
         if scaled is None:
             return
-        fit, c, rescale = scaled
+        fit, c, rescale, turned = scaled
+        R = np.stack(self.R[first:last + 1])  # the tail's, turned onto the solved wall
         on_wall = np.zeros(len(uniq), bool)
         on_wall[np.flatnonzero(wall)[fit.inliers]] = True
         fixed = self._held_poses(first, last)
@@ -447,7 +512,8 @@ class StraightVO:
         sec.windows += 1
         self.windows.append(WindowReport(sec.number, int(first), int(last), len(fixed), len(uniq), len(obs),
                                          float(res.time_s), int(res.iterations), float(res.rms_px),
-                                         float(res.cylinder_rms_m), float(rescale), float(after / before)))
+                                         float(res.cylinder_rms_m), float(rescale), float(after / before),
+                                         turned))
 
     def _window_observations(self, first: int, last: int):
         """Observations of live points in keyframes first..last, a point needing two of them: (keyframe, row in
@@ -484,16 +550,16 @@ class StraightVO:
                          end: int):
         """The cylinder of the window's points on the straight wall (`wall`), after the rescale that puts them
         on it (the section's by its free radius before its first window, the tail's after): (fit, window camera
-        centres, rescale), or None when no cylinder fits. `end`: the section's last keyframe."""
+        centres, rescale, the tail's turn in deg), or None when no cylinder fits. `end`: the section's last keyframe."""
         uniq = uniq[wall]
         c = np.stack(self.c[first:last + 1])
         direction = c[end - first] - c[0]
         if np.linalg.norm(direction) <= 0:
             direction = R[0][:, 2]
-        rescale = 1.0
+        rescale, turned = 1.0, 0.0
         huber = self.b.huber_m
         if self._metric:
-            rescale = self._rescale_tail(uniq, first, last, R[0], c[0])
+            rescale, turned = self._rescale_tail(uniq, first, last, R[0], c[0])
             c = np.stack(self.c[first:last + 1])
         else:
             # Unknown units: put the Huber threshold at the same fraction of the (rough) radius.
@@ -511,7 +577,7 @@ class StraightVO:
                                    direction=c[end - first] - c[0], huber=self.b.huber_m)
         except (ValueError, np.linalg.LinAlgError):
             return None
-        return fit, c, rescale
+        return fit, c, rescale, turned
 
     def _held_poses(self, first: int, last: int) -> list[int]:
         """The window's poses (0 = keyframe `first`) the solve holds: the first pose of a section's first window,

@@ -89,7 +89,9 @@ def _summary(run: dict | None, frames_csv: Path) -> str:
     if run is not None:
         for key, label in (("input", "input dataset"), ("version", "pipemap version"), ("frames", "frames"),
                            ("keyframes", "keyframes"), ("points", "sparse points"),
-                           ("lost_keyframes", "sections started after lost tracking")):
+                           ("lost_keyframes", "sections started after lost tracking"),
+                           ("refused_poses", "keyframe poses refused (rotation the image motion cannot make)"),
+                           ("continued_poses", "keyframe poses that continue the motion before")):
             if key in run:
                 rows.append([label, run[key]])
         if isinstance(run.get("junction_passes"), list):

@@ -263,9 +263,15 @@ class FlowTracker(FeatureTracker):
         if pose is None:
             return None
         R, t = refine_pose(pose.R, pose.t, kf.bearings[rows][pose.inliers], bearings[pose.inliers], self.threshold)
+        inliers = pose.inliers
+        found = self.continue_motion(R, t, inliers, kf.bearings[rows], bearings)
+        if found is not None:
+            R, t, inliers = found
+        if not self.rotation_fits(R, kf.bearings[rows][inliers], bearings[inliers]):
+            return None
         consistent = consistent_with_pose(R, t, kf.bearings[rows], bearings, s.track_threshold_factor * self.threshold)
         if not s.continue_on_refined_pose:
-            consistent &= pose.inliers
+            consistent &= inliers
         rows, positions, bearings = rows[consistent], positions[consistent], bearings[consistent]
         velocities = velocities[consistent]
         # Corners of the frame where no track continues start new ones.

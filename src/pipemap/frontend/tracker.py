@@ -32,9 +32,11 @@ from pipemap.frontend.harris import bearing_map, detect_corners, flatten_lightin
 from pipemap.frontend.keyframes import needs_keyframe
 from pipemap.frontend.relpose import (
     RelativePose,
+    continued_motion,
     essential_from_pose,
     estimate_relative_pose,
     refine_pose,
+    rotation_fits_motion,
     sampson_angle,
     triangulate_depths,
 )
@@ -109,6 +111,8 @@ class FeatureTracker:
         self._candidate: _Match | None = None
         self._lost = 0
         self._reference = 0
+        self.refused_poses = 0  # relative poses refused for a rotation their inliers' motion cannot have made
+        self.continued_poses = 0  # RANSAC poses replaced by the previous motion continued (continue_motion)
         self.brightness_terms = _BRIGHTNESS_TERMS[self.s.anchor_lighting]
         self._saturated_of: tuple[int | None, np.ndarray | None] = (None, None)  # (frame index, its saturated mask)
 
@@ -132,6 +136,29 @@ class FeatureTracker:
                                    min_distance_px=s.min_distance_px, quality=s.harris_quality)
         anchor_image = image if s.anchor_lighting == "flattened" else log_brightness(raw)
         return image, anchor_image, points
+
+    def continue_motion(self, R: np.ndarray, t: np.ndarray, inliers: np.ndarray, bearings_i: np.ndarray,
+                        bearings_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(R, t, inliers) of the previous keyframe's motion continued where the pairs cannot tell it from RANSAC's
+        pose (relpose.continued_motion), else None."""
+        s = self.s
+        prev = self.keyframes[-1] if self.keyframes else None
+        if s.continued_motion_share is None or prev is None or not prev.pose_valid:
+            return None
+        found = continued_motion(R, t, inliers, prev.R, prev.t, bearings_i, bearings_j, self.threshold,
+                                 s.continued_motion_share, s.continued_motion_apart_deg)
+        self.continued_poses += found is not None
+        return found
+
+    def rotation_fits(self, R: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray) -> bool:
+        """Whether a relative pose's rotation could have moved its inliers as they moved (relpose.rotation_fits_motion;
+        always when `frontend.rotation_check_factor` is None)."""
+        s = self.s
+        if s.rotation_check_factor is None or rotation_fits_motion(R, bearings_i, bearings_j, s.rotation_check_factor,
+                                                                   s.rotation_check_slack_deg):
+            return True
+        self.refused_poses += 1
+        return False
 
     def saturated(self, frame: Frame) -> np.ndarray | None:
         """(H, W) bool: the pixels of `frame` within half a ZNCC patch of a saturated one
@@ -166,7 +193,14 @@ class FeatureTracker:
                                       s.ransac_max_trials, min_inliers=s.min_inliers, refine=False)
         if pose is None:
             return None
+        found = self.continue_motion(pose.R, pose.t, pose.inliers, kf.bearings[ii], f.bearings[jj])
+        if found is not None:
+            R, t, inliers = found
+            E = essential_from_pose(R, t)
+            pose = RelativePose(E, R, t, inliers, sampson_angle(E, kf.bearings[ii], f.bearings[jj]), pose.trials)
         ii, jj = ii[pose.inliers], jj[pose.inliers]
+        if not self.rotation_fits(pose.R, kf.bearings[ii], f.bearings[jj]):
+            return None
         flow = float(np.median(np.linalg.norm(f.keypoints[jj] - kf.keypoints[ii], axis=1)))
         # Harris corners recur only partly from frame to frame, and guided features are not corners
         # at all, so "tracked" is measured against the most matches this keyframe has had.

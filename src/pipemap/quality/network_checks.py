@@ -18,6 +18,7 @@ import numpy as np
 from pipemap.backend.free_points import free_points
 from pipemap.backend.network_map import stretch_cylinder
 from pipemap.config import QualitySettings
+from pipemap.frontend.image_steps import step_disagreement
 from pipemap.quality.verdict import FAILED, SUSPECT, Check, RunVerdict, SectionVerdict, above, below
 
 _MIN_PARALLAX_DEG = 2.0  # tracks seen over less are too poorly triangulated to say anything about the radius
@@ -163,6 +164,10 @@ def _straight_checks(v: SectionVerdict, s, windows, keyframes, poses, mapped, ra
     if mapped is not None and mapped.cylinder is not None:
         r_free, n = section_free_radius(keyframes, poses, s.first, s.last, mapped.cylinder, radius,
                                         q.min_free_radius_points, wall)
+    v.figures["image_step_factor"] = step_disagreement(keyframes, poses, s.first, s.last, radius,
+                                                      q.image_step_keyframes)
+    v.checks.append(above("image motion", v.figures["image_step_factor"], q.image_step,
+                          "keyframe steps differ from the image motion's by a factor of", fmt=lambda x: f"{x:.2f}"))
     v.figures["free_radius_m"] = r_free
     v.figures["free_radius_points"] = n
     v.checks.append(above("free radius", None if r_free is None else abs(r_free / radius - 1), q.free_radius,
