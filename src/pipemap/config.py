@@ -84,6 +84,11 @@ class FrontendSettings(_Section):
                                                  "but keeps at least this share of its inliers, it is the pose: the "
                                                  "pairs cannot tell them apart and a crawler drives on smoothly "
                                                  "(frontend/relpose.py continued_motion; None: off)")
+    continued_motion_max_inliers: int = Field(100, ge=0, description="only poses RANSAC found with at most this "
+                                              "many inliers are weighed against the continued motion: with hundreds "
+                                              "(640x480 H.264 CCTV: 190-380) RANSAC's pose was the right one in 6 of "
+                                              "8 such ties, with a few dozen (320x240) the continued one in 13 of "
+                                              "18")
     continued_motion_apart_deg: float = Field(1.0, gt=0, description="the refined previous pose is another "
                                               "solution when its rotation is this far from RANSAC's or its "
                                               "translation ten times this")

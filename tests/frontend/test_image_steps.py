@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from pipemap.frontend.tracks import Keyframe
+from pipemap.geometry.cylinder import Cylinder
 from pipemap.geometry.rotations import exp_so3
 from pipemap.frontend.image_steps import image_step, step_disagreement
 
@@ -65,3 +66,15 @@ def test_a_scale_that_shrank_with_its_points_is_told_by_the_image_motion():
     shrunk[25:, :3, 3] = c[25] + 0.25 * (c[25:] - c[25])
     assert step_disagreement(kfs, shrunk, 0, 40, RADIUS, 10) == pytest.approx(4.0, rel=0.05)
     assert step_disagreement(kfs, shrunk, 0, 20, RADIUS, 10) < 1.05  # the part before is as it was
+
+
+@pytest.mark.parametrize("offset", [(0.0, -0.05), (0.07, 0.06), (0.0, 0.1)])
+def test_off_the_axis_the_mapped_wall_makes_the_step_exact(offset):
+    """Two thirds of the radius off the axis the camera-on-the-axis reading is 0.69 of the step; with the wall
+    the map fitted it is the step."""
+    steps = np.full(6, 0.05)
+    kfs, poses = _keyframes(steps, offset, 50.0)
+    wall = Cylinder(np.zeros(3), np.array([0.0, 0.0, 1.0]), RADIUS)
+    seen = np.array([image_step(a, b, RADIUS, ((poses[k, :3, :3], poses[k, :3, 3]), wall))
+                     for k, (a, b) in enumerate(zip(kfs[:-1], kfs[1:]))])
+    assert np.all(np.abs(seen / steps - 1) < 0.01), seen

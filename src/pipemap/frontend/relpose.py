@@ -302,7 +302,8 @@ def continued_motion(R: np.ndarray, t: np.ndarray, inliers: np.ndarray, prior_R:
 
     A crawler's motion from keyframe to keyframe changes smoothly. `prior_R`, `prior_t` (the previous relative
     pose) refined on all pairs (robustly) either comes back to RANSAC's pose (R, t), or it is another solution;
-    then it is the pose when it has at least `share` of RANSAC's inliers. On 320x240 H.264 CCTV footage of a
+    then it is the pose when it has at least `share` of RANSAC's inliers (the trackers ask only where those are
+    few: frontend.continued_motion_max_inliers). On 320x240 H.264 CCTV footage of a
     straight pipe the few dozen pairs that survive the codec fitted a pose turned 7 deg with its translation 64 deg
     off the pipe's axis better by a handful of pairs than the straight drive, and the window solves did not undo
     it. Returns (R, t, inliers) of the continued motion, or None to keep RANSAC's."""

@@ -143,7 +143,8 @@ class FeatureTracker:
         pose (relpose.continued_motion), else None."""
         s = self.s
         prev = self.keyframes[-1] if self.keyframes else None
-        if s.continued_motion_share is None or prev is None or not prev.pose_valid:
+        if (s.continued_motion_share is None or prev is None or not prev.pose_valid
+                or np.sum(inliers) > s.continued_motion_max_inliers):
             return None
         found = continued_motion(R, t, inliers, prev.R, prev.t, bearings_i, bearings_j, self.threshold,
                                  s.continued_motion_share, s.continued_motion_apart_deg)

@@ -165,7 +165,8 @@ def _straight_checks(v: SectionVerdict, s, windows, keyframes, poses, mapped, ra
         r_free, n = section_free_radius(keyframes, poses, s.first, s.last, mapped.cylinder, radius,
                                         q.min_free_radius_points, wall)
     v.figures["image_step_factor"] = step_disagreement(keyframes, poses, s.first, s.last, radius,
-                                                      q.image_step_keyframes)
+                                                      q.image_step_keyframes,
+                                                      None if mapped is None else mapped.cylinder)
     v.checks.append(above("image motion", v.figures["image_step_factor"], q.image_step,
                           "keyframe steps differ from the image motion's by a factor of", fmt=lambda x: f"{x:.2f}"))
     v.figures["free_radius_m"] = r_free
