@@ -215,6 +215,20 @@ class BundleSettings(_Section):
                                     "where the section's VO put them")
     tee_attach_keyframes: int = Field(20, gt=0, description="keyframes of the section after a tee solved with it "
                                       "(from P_b on); later ones take the same rigid correction")
+    tee_angles_deg: list[float] = Field([0.0, 90.0], description="a tee's or a cross's pipes meet at these angles "
+                                        "(the run passed straight through, the branch taken); [] leaves every tee's "
+                                        "angle to its solve, as the paper does")
+    tee_angle_allowance_deg: float = Field(0.5, ge=0, description="... give or take this (the pipes' deflection in "
+                                           "the tee's sockets): a free solve's angle further off, but within "
+                                           "tee_angle_within_deg, is held at the allowance's nearer end")
+    tee_angle_within_deg: float = Field(2.0, ge=0, description="a free angle further than this from every tee angle "
+                                        "stands (a wye, a lateral, an 87.5 deg junction)")
+    tee_angle_exact_codecs: list[str] = Field(["h264"], description="on video in these codecs (FFmpeg's names) from "
+                                              "a camera that sees the wall beside it, a tee's solve is held at the "
+                                              "tee angle itself, with no allowance: there the tracks lag the motion "
+                                              "and the free solve turned every tee short, by 0.25-1.6 deg (paper-loop "
+                                              "route A as H.264, seeds 1-2: Table I 4.14 / 1.23 %, held 0.55 / "
+                                              "0.11 %), more than sockets deflect")
     elbow_torus: bool = Field(True, description="an elbow's solve holds the wall of its bend to a torus tangent to "
                               "both pipes' cylinders, its bend radius solved with the tee parameters (off: the bend's "
                               "wall counts by its reprojections only)")

@@ -310,7 +310,8 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings,
     pipe_map = type_turning_passes(pipe_map, dataset.radius_m, settings)
     joins = []
     if settings.bundle.tee_model:
-        pipe_map, joins = join_sections(pipe_map, result.active, dataset.camera, dataset.radius_m, settings)
+        exact = dataset.codec in settings.bundle.tee_angle_exact_codecs and dataset.camera.sees_beside()
+        pipe_map, joins = join_sections(pipe_map, result.active, dataset.camera, dataset.radius_m, settings, exact)
     pipe_map = fit_elbow_bends(pipe_map, dataset.radius_m, settings)
     pipe_map, dropped = weigh_junction_evidence(pipe_map, settings)
     revisit = RevisitReport("no revisit" if settings.loop_closure.enabled else "disabled")

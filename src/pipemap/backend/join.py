@@ -51,6 +51,9 @@ class JoinReport:
     correction_m: float = float("nan")  # how far the blue section's first pose moved
     correction_deg: float = float("nan")
     time_s: float = 0.0
+    free_angle_deg: float = float("nan")  # the angle the solve found with it free
+    angle_held: bool = False  # the solve held it near a tee's angle (bundle.tee_angles_deg)
+    free_rms_px: float = float("nan")
 
     def to_dict(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else
@@ -77,9 +80,10 @@ def _observations(keyframes: list[Keyframe], active: list[np.ndarray], lo: int, 
 
 
 def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraModel, radius: float,
-                  settings: Settings) -> tuple[PipeMap, list[JoinReport]]:
+                  settings: Settings, exact_angles: bool = False) -> tuple[PipeMap, list[JoinReport]]:
     """The map with every tee the model could solve joined (its centre the model's I), and a report per
-    junction. `active`: per keyframe, the observations the VO kept."""
+    junction. `active`: per keyframe, the observations the VO kept. `exact_angles`: a tee's angle is held at
+    the tee angle itself (no allowance; see `bundle.tee_angle_exact_codecs`)."""
     hold, attach = settings.bundle.tee_hold_keyframes, settings.bundle.tee_attach_keyframes
     out = pipe_map.copy()
     order = np.argsort(out.point_tracks)
@@ -115,13 +119,22 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
             on_bend = on_arc(out.points[rows], bend, rho)
         fixed = [k - lo for k in range(lo, r_pose)]
         attached = [k - lo for k in range(b_pose + 1, hi + 1)]
+        def solve(poses, points, red, blue, model=None, angle=None):
+            return solve_junction(camera, poses, points, obs, red, blue,
+                                  red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
+                                  radius=radius, settings=settings, cylinder_points=on_wall, torus_points=on_bend,
+                                  bend_radius=rho if settings.bundle.elbow_torus else None,
+                                  free_red_axis=settings.bundle.elbow_free_red_axis,
+                                  through=None if j.type == "elbow" else "auto", model=model, angle=angle)
         try:
-            res = solve_junction(camera, out.poses[lo:hi + 1], out.points[rows], obs, red_cyl, blue_cyl,
-                                 red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
-                                 radius=radius, settings=settings, cylinder_points=on_wall, torus_points=on_bend,
-                                 bend_radius=rho if settings.bundle.elbow_torus else None,
-                                 free_red_axis=settings.bundle.elbow_free_red_axis,
-                                 through=None if j.type == "elbow" else "auto")
+            res = free = solve(out.poses[lo:hi + 1], out.points[rows], red_cyl, blue_cyl)
+            nominal = None if j.type == "elbow" else _held_angle(free.model.angle_deg, settings, exact_angles)
+            if nominal is not None and np.isfinite(free.rms_px) and np.all(np.isfinite(free.poses)):
+                # from the free solve, which the held one refines (the cylinders as its model has them, relative to
+                # P_r and P_b: the world ones sit where P_b was before it)
+                res = solve(free.poses, np.where(np.isfinite(free.points), free.points, out.points[rows]),
+                            free.model.red, free.model.blue, free.model, np.radians(nominal))
+                res.blue_transform = res.blue_transform @ free.blue_transform
         except (ValueError, np.linalg.LinAlgError) as exc:
             reports.append(JoinReport(j.id, f"kept the VO chaining: the tee solve failed ({exc})"))
             continue
@@ -148,8 +161,25 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
             j.axes = np.stack([solved.d1, solved.d2])
         reports.append(JoinReport(j.id, "tee-model", n, len(sel), len(obs), float(res.rms_px),
                                   float(res.cylinder_rms_m), float(res.model.angle_deg), float(moved), float(angle),
-                                  float(res.time_s)))
+                                  float(res.time_s + (free.time_s if res is not free else 0.0)),
+                                  float(free.model.angle_deg), res is not free, float(free.rms_px)))
     return out, reports
+
+
+def _held_angle(free_deg: float, settings: Settings, exact: bool = False) -> float | None:
+    """The angle (deg) a tee's solve is held at: the nearest of bundle.tee_angles_deg give or take
+    bundle.tee_angle_allowance_deg (none if `exact`), where the free solve's angle lies beyond the allowance but
+    within bundle.tee_angle_within_deg of it; else None (the free angle stands)."""
+    b = settings.bundle
+    allowance = 0.0 if exact else b.tee_angle_allowance_deg
+    angles = np.asarray(b.tee_angles_deg, float)
+    if not len(angles) or not np.isfinite(free_deg):
+        return None
+    near = float(angles[np.argmin(np.abs(angles - free_deg))])
+    off = free_deg - near
+    if abs(off) <= allowance or abs(off) > b.tee_angle_within_deg:
+        return None
+    return float(np.clip(near + np.sign(off) * allowance, 0.0, 179.999))
 
 
 def _beside_the_bend(pipe_map: PipeMap, j, red, blue, radius: float, settings: Settings):

@@ -141,7 +141,7 @@ class JunctionProblem:
                  blue_pose: int, fixed=(), attached=(), radius: float | None = None, model=None,
                  cylinder_points: np.ndarray | None = None, torus_points: np.ndarray | None = None,
                  bend_radius: float | None = None, free_red_axis: bool = False, through: str | None = "auto",
-                 tau: float = _B.tau,
+                 angle: float | None = None, tau: float = _B.tau,
                  huber_px: float = _B.huber_px, huber_m: float = _B.huber_m, mad_k: float = _B.mad_k,
                  outlier_passes: int = _B.outlier_passes, max_iterations: int = _B.max_iterations):
         self.camera = camera
@@ -185,6 +185,15 @@ class JunctionProblem:
             tee = TeeModel(model.params, red_p, blue_p, r)
         else:
             tee = TeeModel(model, red_p, blue_p, r)
+        # A held angle: phi leaves the global block and stays at its value.
+        self.held = np.zeros(self.n_global, bool)
+        if angle is not None:
+            if not 0.0 <= float(angle) < np.pi:
+                raise ValueError(f"a held angle must lie in [0, pi), got {angle!r}")
+            params = tee.canonical().params.copy()
+            params[4] = float(angle)
+            tee = tee.with_params(params)
+            self.held[4] = True
         # Attached poses relative to P_b, and how a perturbation of Q moves each of them.
         self.blue_initial = to_matrix(Rb, tb)
         S_R, S_t = compose(*invert(Rb, tb), R[self.attached], t[self.attached])
@@ -216,6 +225,7 @@ class JunctionProblem:
 
     def _step(self, state: JunctionState, delta) -> JunctionState:
         dc, dx, dp = delta
+        dx = np.where(self.held, 0.0, dx)
         pose_delta = np.zeros((self.N, 6))
         pose_delta[self.free_index >= 0] = dc
         R, t = retract(state.R, state.t, pose_delta)
@@ -390,6 +400,8 @@ class JunctionProblem:
             Ux += (wd[:, None] * Jd_phi).T @ Jd_phi
             gx += Jd_phi.T @ (wd * d)
             Wx += Jd_phi[:, :, None] * wJd[:, None, :]
+        if self.held.any():  # a held parameter: no row, no column, no gradient (the ridge keeps its step at zero)
+            Ux[self.held, :], Ux[:, self.held], gx[self.held], Wx[:, self.held] = 0.0, 0.0, 0.0, 0.0
         # Points without inlier observations are frozen: an identity block with no gradient.
         V[~st.active] = np.eye(3)
         gp[~st.active] = 0.0

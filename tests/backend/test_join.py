@@ -1,0 +1,44 @@
+"""Which angle a tee's solve is held at (backend/join.py): the nearest tee angle give or take the sockets'
+deflection, only where the free solve lands beyond that deflection but near the fitting."""
+
+from __future__ import annotations
+
+import pytest
+
+from pipemap.backend.join import _held_angle
+from pipemap.config import Settings
+
+
+@pytest.mark.parametrize("free, held", [
+    (90.3, None),  # within the allowance: the free angle stands
+    (89.5, None),
+    (88.6, 89.5),  # beyond it: held at the allowance's nearer end
+    (91.9, 90.5),
+    (87.5, None),  # too far for this fitting (an 87.5 deg junction, a wye)
+    (45.0, None),
+    (0.2, None),  # a run passed straight through
+    (1.4, 0.5),
+    (float("nan"), None),
+])
+def test_held_angle(free, held):
+    got = _held_angle(free, Settings())
+    assert got == (None if held is None else pytest.approx(held, abs=1e-12))
+
+
+def test_no_tee_angles_leave_every_angle_free():
+    s = Settings()
+    s.bundle.tee_angles_deg = []
+    assert _held_angle(88.6, s) is None
+
+
+def test_no_allowance_holds_the_tee_angle_itself():
+    s = Settings()
+    s.bundle.tee_angle_allowance_deg = 0.0
+    assert _held_angle(89.7, s) == 90.0
+    assert _held_angle(90.0, s) is None  # already there
+
+
+def test_on_lagging_footage_the_tee_angle_itself_is_held():
+    assert _held_angle(89.7, Settings(), exact=True) == 90.0
+    assert _held_angle(88.2, Settings(), exact=True) == 90.0
+    assert _held_angle(87.5, Settings(), exact=True) is None  # still only near a tee angle
