@@ -170,7 +170,8 @@ def info(
     else:
         damage = "; ".join(d.line() for d in log.damage) or "none"
     table.add_row("damage", damage)
-    table.add_row("de-interlacing", ds.deinterlace)
+    method, why = ds.deinterlacing
+    table.add_row("de-interlacing", f"{method} (auto: {why})" if ds.deinterlace == "auto" else method)
     if ds.mask is not None:
         table.add_row("mask", f"{ds.mask_path} ({ds.mask.mean():.0%} of the pixels usable)")
     table.add_row("camera", repr(ds.camera))

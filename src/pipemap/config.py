@@ -631,6 +631,9 @@ class QualitySettings(_Section):
                                             "scale that shrank with its points). Measured: 1.000-1.014 on 640x480 "
                                             "CCTV, 1.001-1.003 paper-loop, 1.02-1.025 fisheye H.264")
     image_step_keyframes: int = Field(10, ge=3, description="keyframes of a stretch of that comparison")
+    tee_angle_off_deg: float = Field(0.5, gt=0, description="a tee whose free solve turned further than this from "
+                                     "the tee angle it was held at (bundle.tee_angles_deg) is suspect: more than its "
+                                     "sockets deflect, so the tracking through it turned it")
     tracked_share: tuple[float, float] = Field((0.5, 0.25), description="a section's median fraction of the "
                                                "previous keyframe's features tracked on, as a share of the run's "
                                                "median (the lens sets the usual value): suspect below the first, "

@@ -15,8 +15,9 @@ import numpy as np
 
 from pipemap.camera import CameraModel, camera_from_dict
 from pipemap.errors import PipemapError
-from pipemap.footage import (DEINTERLACE_METHODS, Damage, FootageLog, FrameSource, ImageFolder, RawFrame,
-                             RepeatDetector, RosBag, VideoFile, deinterlace, frame_period, is_bag, missing_before,
+from pipemap.footage import (DEINTERLACE_AUTO, DEINTERLACE_METHODS, DEINTERLACE_SAMPLES, Damage, FootageLog,
+                             FrameSource, ImageFolder, RawFrame, RepeatDetector, RosBag, VideoFile, deinterlace,
+                             frame_period, interlaced, is_bag, missing_before,
                              read_grey, read_mask, read_timestamps, to_grey)
 from pipemap.yamlfile import read_yaml
 from pipemap.network import PipeNetwork, load_network
@@ -53,7 +54,7 @@ class Dataset:
     gain_mask_path: Path | None
     source: FrameSource
     bag_path: Path | None = None
-    deinterlace: str = "none"
+    deinterlace: str = "auto"  # as asked for: see `deinterlacing` for what the frames get
     mask_path: Path | None = None
     mask: np.ndarray | None = field(default=None, repr=False)  # (H, W) bool, True = usable pixel; None: all usable
 
@@ -135,6 +136,30 @@ class Dataset:
             raise IndexError(index)
         return self._frame(self.source.read(index), gain_correct)
 
+    @property
+    def deinterlacing(self) -> tuple[str, str]:
+        """(the de-interlacing the frames get, why when `auto` chose it): `auto` looks at a few pictures spread
+        through the recording once (footage.deinterlace.interlaced)."""
+        if self.deinterlace != "auto":
+            return self.deinterlace, ""
+        if getattr(self, "_deinterlacing", None) is None:
+            found, why = interlaced(self._samples(DEINTERLACE_SAMPLES))
+            self._deinterlacing = (DEINTERLACE_AUTO if found else "none", why)
+        return self._deinterlacing
+
+    def _samples(self, n: int) -> list[RawFrame]:
+        """Up to n readable raw frames spread through the recording (its first and last tenth left out: a crawler
+        often stands at the start)."""
+        total = len(self)
+        at = np.unique(np.linspace(0.1 * (total - 1), 0.9 * (total - 1), n).round().astype(int)) if total else []
+        out = []
+        for i in at:
+            try:
+                out.append(self.source.read(int(i)))
+            except PipemapError:
+                continue
+        return out
+
     def frames(self, start: int = 0, stop: int | None = None, step: int = 1, gain_correct: bool = True,
                log: FootageLog | None = None) -> Iterator[Frame]:
         """Stream the readable frames in index order, flagged `repeated` and `dropped_before`.
@@ -142,6 +167,8 @@ class Dataset:
         Damaged frames are skipped. Pass a FootageLog to have it filled with what this pass found
         (frames read, repeated indices, drops, damage records) for run.json."""
         stop = len(self) if stop is None else min(stop, len(self))
+        if log is not None:
+            log.deinterlace, log.deinterlace_why = self.deinterlacing
         missing = self.missing_before()
         repeats = RepeatDetector(self.mask)
         counted = start  # drops before this index are already handed out
@@ -185,7 +212,7 @@ class Dataset:
 
     def _frame(self, raw: RawFrame, gain_correct: bool, repeated: bool = False, dropped: int = 0) -> Frame:
         self._check_size(raw)
-        img = deinterlace(raw.image, self.deinterlace, raw.top_field_first)
+        img = deinterlace(raw.image, self.deinterlacing[0], raw.top_field_first)
         gain = self.gain() if gain_correct else None
         if gain is not None:
             img = img / gain
@@ -237,7 +264,9 @@ def _file_key(data: dict, key: str, root: Path, yaml_path: Path) -> Path | None:
 
 def _deinterlace_method(data: dict, yaml_path: Path) -> str:
     value = data.get("deinterlace")
-    if value is None or value is False:  # YAML reads `off` / `no` as false
+    if value is None:
+        return "auto"
+    if value is False:  # YAML reads `off` / `no` as false
         return "none"
     if not isinstance(value, str) or value.lower() not in DEINTERLACE_METHODS:
         raise PipemapError(f"expected one of {', '.join(DEINTERLACE_METHODS)}, got {value!r}", yaml_path, "deinterlace")

@@ -86,5 +86,5 @@ def test_footage_log_is_json_ready(tmp_path):
     doc = json.loads(json.dumps(log.to_dict()))
     assert doc == {"frames_read": 5, "repeated": 3, "repeated_frames": [[1, 2], [4, 4]], "dropped": 2,
                    "drops": [{"before": 3, "missing": 2}], "damaged": 0, "damage": [], "predicted": False,
-                   "settling_left_out": 0}
+                   "settling_left_out": 0, "deinterlace": {"method": "none", "why": None}}
     assert log.line() == "footage: 5 frames read, 3 repeated, 2 dropped in 1 gap"

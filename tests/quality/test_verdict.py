@@ -198,3 +198,25 @@ def test_a_long_bowed_section_keeps_its_free_radius_stretch_by_stretch():
     poses[:, :3, 3] *= 1.03
     r, _ = section_free_radius(kfs, poses, 0, last, whole, 0.2, 30, (X * 1.03, np.arange(len(X)), 0.005))
     assert r / 0.2 == pytest.approx(1.03, abs=0.003)
+
+
+def test_a_tee_whose_free_solve_turned_off_its_angle_is_suspect():
+    from types import SimpleNamespace as NS
+
+    from pipemap.backend.join import JoinReport
+    from pipemap.config import QualitySettings
+    from pipemap.quality import network_verdict
+
+    kfs, poses = _keyframes_on_a_cylinder(0.2, 20, 0.02)
+    sections = [NS(number=0, first=0, last=9, kind="junction", scale="cylinder", linked=True),
+                NS(number=1, first=10, last=19, kind="junction", scale="cylinder", linked=True)]
+    junctions = [NS(id="T1", first=0, last=9, method="tee-model"), NS(id="T2", first=10, last=19, method="tee-model")]
+    joins = [JoinReport("T1", "tee-model", angle_deg=89.5, free_angle_deg=88.6, angle_held=True,
+                        free_angle_off_deg=1.4),
+             JoinReport("T2", "tee-model", angle_deg=90.0, free_angle_deg=89.7, angle_held=True,
+                        free_angle_off_deg=0.3)]
+    q = network_verdict(sections, [], kfs, poses, [], junctions, joins, None, 0.2, QualitySettings(), 0.6)
+    t1, t2 = q.sections
+    assert t1.rating == SUSPECT and "T1's free solve turned 1.40 deg from a tee's angle" in t1.reasons[0]
+    assert t1.figures["tee_free_angle_deg"] == 88.6
+    assert t2.rating == GOOD  # held by no more than its sockets deflect

@@ -54,6 +54,7 @@ class JoinReport:
     free_angle_deg: float = float("nan")  # the angle the solve found with it free
     angle_held: bool = False  # the solve held it near a tee's angle (bundle.tee_angles_deg)
     free_rms_px: float = float("nan")
+    free_angle_off_deg: float = float("nan")  # a held solve's free angle from the tee angle it was held near
 
     def to_dict(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else
@@ -110,31 +111,9 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
             reports.append(JoinReport(j.id, f"kept the VO chaining: only {len(sel)} points seen in the junction"))
             continue
         rows = order[sel]  # the junction's points in the map
-        on_wall, on_bend, rho = None, None, None
-        if j.type == "elbow":
-            rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
-            bend = bend_of(red_cyl, blue_cyl, j.centroid)
-            on_wall = ~on_arc(out.points[rows], bend, rho, margin_deg=-ARC_MARGIN_DEG)
-            # the torus term takes the points well inside the arc; those at its ends could be the straight pipe's
-            on_bend = on_arc(out.points[rows], bend, rho)
-        fixed = [k - lo for k in range(lo, r_pose)]
-        attached = [k - lo for k in range(b_pose + 1, hi + 1)]
-        def solve(poses, points, red, blue, model=None, angle=None):
-            return solve_junction(camera, poses, points, obs, red, blue,
-                                  red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
-                                  radius=radius, settings=settings, cylinder_points=on_wall, torus_points=on_bend,
-                                  bend_radius=rho if settings.bundle.elbow_torus else None,
-                                  free_red_axis=settings.bundle.elbow_free_red_axis,
-                                  through=None if j.type == "elbow" else "auto", model=model, angle=angle)
         try:
-            res = free = solve(out.poses[lo:hi + 1], out.points[rows], red_cyl, blue_cyl)
-            nominal = None if j.type == "elbow" else _held_angle(free.model.angle_deg, settings, exact_angles)
-            if nominal is not None and np.isfinite(free.rms_px) and np.all(np.isfinite(free.poses)):
-                # from the free solve, which the held one refines (the cylinders as its model has them, relative to
-                # P_r and P_b: the world ones sit where P_b was before it)
-                res = solve(free.poses, np.where(np.isfinite(free.points), free.points, out.points[rows]),
-                            free.model.red, free.model.blue, free.model, np.radians(nominal))
-                res.blue_transform = res.blue_transform @ free.blue_transform
+            res, free = _solve_pass(out, j, rows, obs, (lo, hi, r_pose, b_pose), red_cyl, blue_cyl, camera, radius,
+                                    settings, exact_angles)
         except (ValueError, np.linalg.LinAlgError) as exc:
             reports.append(JoinReport(j.id, f"kept the VO chaining: the tee solve failed ({exc})"))
             continue
@@ -162,8 +141,49 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
         reports.append(JoinReport(j.id, "tee-model", n, len(sel), len(obs), float(res.rms_px),
                                   float(res.cylinder_rms_m), float(res.model.angle_deg), float(moved), float(angle),
                                   float(res.time_s + (free.time_s if res is not free else 0.0)),
-                                  float(free.model.angle_deg), res is not free, float(free.rms_px)))
+                                  float(free.model.angle_deg), res is not free, float(free.rms_px),
+                                  _off_tee_angle(free.model.angle_deg, settings) if res is not free else float("nan")))
     return out, reports
+
+
+def _solve_pass(out: PipeMap, j, rows: np.ndarray, obs: Observations, span: tuple[int, int, int, int], red_cyl,
+                blue_cyl, camera: CameraModel, radius: float, settings: Settings, exact_angles: bool):
+    """(the junction solve's result, its free solve): keyframes lo..hi with P_r, P_b at r_pose, b_pose (`span`),
+    the map's points `rows`. A tee whose free angle lies off its tee angle (`_held_angle`) is solved again from
+    the free solution with the angle held."""
+    lo, hi, r_pose, b_pose = span
+    on_wall, on_bend, rho = None, None, None
+    if j.type == "elbow":
+        rho = j.bend_radius_m if np.isfinite(j.bend_radius_m) else 4.0 * radius
+        bend = bend_of(red_cyl, blue_cyl, j.centroid)
+        on_wall = ~on_arc(out.points[rows], bend, rho, margin_deg=-ARC_MARGIN_DEG)
+        # the torus term takes the points well inside the arc; those at its ends could be the straight pipe's
+        on_bend = on_arc(out.points[rows], bend, rho)
+    fixed = [k - lo for k in range(lo, r_pose)]
+    attached = [k - lo for k in range(b_pose + 1, hi + 1)]
+
+    def solve(poses, points, red, blue, model=None, angle=None):
+        return solve_junction(camera, poses, points, obs, red, blue,
+                              red_pose=r_pose - lo, blue_pose=b_pose - lo, fixed=fixed, attached=attached,
+                              radius=radius, settings=settings, cylinder_points=on_wall, torus_points=on_bend,
+                              bend_radius=rho if settings.bundle.elbow_torus else None,
+                              free_red_axis=settings.bundle.elbow_free_red_axis,
+                              through=None if j.type == "elbow" else "auto", model=model, angle=angle)
+
+    res = free = solve(out.poses[lo:hi + 1], out.points[rows], red_cyl, blue_cyl)
+    held = None if j.type == "elbow" else _held_angle(free.model.angle_deg, settings, exact_angles)
+    if held is not None and np.isfinite(free.rms_px) and np.all(np.isfinite(free.poses)):
+        # from the free solve, which the held one refines (the cylinders as its model has them, relative to P_r and
+        # P_b: the world ones sit where P_b was before it)
+        res = solve(free.poses, np.where(np.isfinite(free.points), free.points, out.points[rows]),
+                    free.model.red, free.model.blue, free.model, np.radians(held))
+        res.blue_transform = res.blue_transform @ free.blue_transform
+    return res, free
+
+
+def _off_tee_angle(angle_deg: float, settings: Settings) -> float:
+    """How far an angle lies from the nearest of bundle.tee_angles_deg (deg)."""
+    return float(np.min(np.abs(np.asarray(settings.bundle.tee_angles_deg, float) - angle_deg)))
 
 
 def _held_angle(free_deg: float, settings: Settings, exact: bool = False) -> float | None:

@@ -6,14 +6,27 @@ and below: one instant per frame at half the vertical detail (one frame out per 
 crawler moves too slowly for field-rate output to help, and the frame count and timestamps stay
 the recording's). `blend` filters every column with [1, 2, 1] / 4, which mixes the two fields
 into one frame without a vertical shift: full detail where nothing moves, a slight blur where
-something does."""
+something does.
+
+`auto` (the default) decides from the recording: interlaced where the decoder says a picture was coded
+as two fields, or where the pictures comb. A row of a progressive picture lies near the mean of its
+neighbours, nearer than to the mean of the rows two away (natural images are smooth); in a combed one
+each row belongs to the other field's instant, and on a moving wall it lies further (`combing`). Measured
+on the simulator's recordings: 0.57-0.68 progressive (clean PNG, H.264, MJPEG, 320x240 to 720x576),
+1.14-1.59 on PAL interlaced MPEG-4 while the crawler moves (0.68 at a pause), so the median over a few
+pictures spread through the recording decides at 0.85. Interlaced footage is then blended: on that PAL
+recording, forward / reverse distance travelled 6.6 / 0.65 % off as it was, 0.41 / 0.58 % blended, 2.8 /
+0.45 % with `bob`."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-METHODS = ("none", "bob", "blend")
+METHODS = ("auto", "none", "bob", "blend")
+AUTO_METHOD = "blend"  # what `auto` does to interlaced footage
+COMBING_LIMIT = 0.85  # median `combing` above which a recording is taken for interlaced
+SAMPLES = 7  # pictures `auto` looks at
 _BLEND = np.array([[0.25], [0.5], [0.25]], np.float32)
 
 
@@ -33,3 +46,27 @@ def deinterlace(image: np.ndarray, method: str, top_field_first: bool = True) ->
     above = np.where(rows - 1 >= 0, rows - 1, rows + 1)
     out[rows] = 0.5 * (image[above] + image[below])
     return out
+
+
+def combing(image: np.ndarray) -> float:
+    """Mean distance of each row from the mean of its neighbours over that from the mean of the rows two away
+    (see the module docstring): about 0.6 for a progressive picture, above 1 for a combed one."""
+    x = np.asarray(image, np.float32)
+    if x.shape[0] < 5:
+        return 0.0
+    near = np.abs(x[2:-2] - 0.5 * (x[1:-3] + x[3:-1])).mean()
+    far = np.abs(x[2:-2] - 0.5 * (x[:-4] + x[4:])).mean()
+    return float(near / far) if far > 0 else 0.0
+
+
+def interlaced(samples) -> tuple[bool, str]:
+    """(interlaced, why) from RawFrames spread through a recording."""
+    samples = list(samples)
+    if not samples:
+        return False, "no picture to look at"
+    if any(getattr(r, "interlaced", False) for r in samples):
+        return True, "the decoder says its pictures were coded as fields"
+    comb = float(np.median([combing(r.image) for r in samples]))
+    if comb > COMBING_LIMIT:
+        return True, f"its pictures comb ({comb:.2f}, limit {COMBING_LIMIT:g})"
+    return False, f"progressive (combing {comb:.2f}, limit {COMBING_LIMIT:g})"

@@ -59,6 +59,8 @@ class FootageLog:
     damage: list[Damage] = field(default_factory=list)
     predicted: bool = False
     settling_left_out: int = 0
+    deinterlace: str = "none"  # the de-interlacing the frames got
+    deinterlace_why: str = ""  # why, where `auto` chose it
 
     @property
     def dropped(self) -> int:
@@ -88,6 +90,7 @@ class FootageLog:
             "damage": [d.to_dict() for d in self.damage],
             "predicted": self.predicted,
             "settling_left_out": self.settling_left_out,
+            "deinterlace": {"method": self.deinterlace, "why": self.deinterlace_why or None},
         }
 
     def line(self) -> str:
@@ -97,6 +100,9 @@ class FootageLog:
             parts.append(f"{len(self.repeated)} repeated")
         if self.drops:
             parts.append(f"{self.dropped} dropped in {len(self.drops)} gap{'s' if len(self.drops) > 1 else ''}")
+        if self.deinterlace != "none":
+            why = f": {self.deinterlace_why}" if self.deinterlace_why else ""
+            parts.append(f"de-interlaced ({self.deinterlace}{why})")
         text = "footage: " + ", ".join(parts)
         if self.damage:
             text += f"; damage: {'; '.join(d.line() for d in self.damage)}"

@@ -24,6 +24,7 @@ class RawFrame:
     image: np.ndarray
     top_field_first: bool = True
     requantised: bool = False  # a keyframe after predicted frames: a copy would return with fresh coding noise
+    interlaced: bool = False  # the decoder says the picture was coded as two fields
 
 
 class FrameSource(Protocol):

@@ -325,7 +325,7 @@ class VideoFile:
                             return
                         yield from holes(i)
                         yield RawFrame(i, frame.to_ndarray(format="gray").astype(np.float32), idx.top_field_first,
-                                       keyframes.fresh(frame))
+                                       keyframes.fresh(frame), bool(frame.interlaced_frame))
                         want = i + 1
                         if want >= stop:
                             return
@@ -360,7 +360,7 @@ class VideoFile:
                         if i >= start:
                             if good:
                                 yield RawFrame(i, frame.to_ndarray(format="gray").astype(np.float32),
-                                               idx.top_field_first, fresh)
+                                               idx.top_field_first, fresh, bool(frame.interlaced_frame))
                             else:
                                 yield Damage(str(self.path), i, 1, "undecodable", _DEPENDENT)
                         i += 1

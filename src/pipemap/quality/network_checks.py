@@ -19,7 +19,7 @@ from pipemap.backend.free_points import free_points
 from pipemap.backend.network_map import stretch_cylinder
 from pipemap.config import QualitySettings
 from pipemap.frontend.image_steps import step_disagreement
-from pipemap.quality.verdict import FAILED, SUSPECT, Check, RunVerdict, SectionVerdict, above, below
+from pipemap.quality.verdict import FAILED, GOOD, SUSPECT, Check, RunVerdict, SectionVerdict, above, below
 
 _MIN_PARALLAX_DEG = 2.0  # tracks seen over less are too poorly triangulated to say anything about the radius
 FREE_RADIUS_STRETCH_RADII = 40.0  # a longer section's free radius is taken against the axes of stretches this long
@@ -127,6 +127,13 @@ def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_s
                 if r is not None and r.status != "tee-model":
                     v.checks.append(Check("tee model", None, SUSPECT, f"{j.id}'s tee model was not solved "
                                           f"({r.status})"))
+                if r is not None and r.angle_held:
+                    v.figures["tee_free_angle_deg"] = r.free_angle_deg
+                    off = r.free_angle_off_deg
+                    v.checks.append(Check("tee angle", off, SUSPECT if off > q.tee_angle_off_deg else GOOD,
+                                          "" if off <= q.tee_angle_off_deg else
+                                          f"{j.id}'s free solve turned {off:.2f} deg from a tee's angle (limit "
+                                          f"{q.tee_angle_off_deg:g}): held at {r.angle_deg:.2f} deg"))
         out.append(v)
     run_tracked = [v.figures["tracked_fraction"] for v in out if v.figures.get("tracked_fraction") is not None]
     if run_tracked:
