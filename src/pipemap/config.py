@@ -631,6 +631,10 @@ class QualitySettings(_Section):
                                             "scale that shrank with its points). Measured: 1.000-1.014 on 640x480 "
                                             "CCTV, 1.001-1.003 paper-loop, 1.02-1.025 fisheye H.264")
     image_step_keyframes: int = Field(10, ge=3, description="keyframes of a stretch of that comparison")
+    unexplained_turn_deg: float = Field(2.0, gt=0, description="a junction section dropped for showing no junction "
+                                        "(no side opening, its axes turning less than a tee's or an elbow's) whose "
+                                        "axes still turn by more than this is suspect: a gentle bend the map has no "
+                                        "model for, or a turn the tracking made (joints deflect by a degree or so)")
     tee_angle_off_deg: float = Field(0.5, gt=0, description="a tee whose free solve turned further than this from "
                                      "the tee angle it was held at (bundle.tee_angles_deg) is suspect: more than its "
                                      "sockets deflect, so the tracking through it turned it")

@@ -338,7 +338,7 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings,
     route = float(np.sum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))) if len(poses) else 0.0
     quality = network_verdict(result.sections, result.windows, vo.keyframes, poses, pipe_map.sections, junctions,
                               joins, revisit, dataset.radius_m, settings.quality, route,
-                              (pipe_map.points, pipe_map.point_tracks, settings.bundle.huber_m))
+                              (pipe_map.points, pipe_map.point_tracks, settings.bundle.huber_m), dropped)
     seconds = {"straight_relative": result.seconds["relative"], "straight_windows": result.seconds["windows"],
                "network": time.perf_counter() - t}
     seconds["loop_closure"] = revisit.seconds

@@ -8,7 +8,7 @@ from footage_helpers import write_dataset, write_video
 from pipemap.dataset import load_dataset
 from pipemap.errors import PipemapError
 from pipemap.footage import RawFrame, deinterlace, interlaced as is_interlaced
-from pipemap.footage.deinterlace import COMBING_LIMIT, combing
+from pipemap.footage.deinterlace import COMBING_LIMIT, anisotropy, combing
 
 
 def interlaced(shift_px: float, h: int = 120, w: int = 160) -> tuple[np.ndarray, np.ndarray]:
@@ -94,7 +94,11 @@ def test_combing_tells_a_combed_picture_from_a_progressive_one():
     samples = [RawFrame(i, img) for i, img in enumerate((combed, combed, wall))]
     found, why = is_interlaced(samples)
     assert found and why.startswith("its pictures comb")
-    assert is_interlaced([RawFrame(0, wall)]) == (False, f"progressive (combing {combing(wall):.2f}, limit 0.85)")
+    assert is_interlaced([RawFrame(0, wall)])[1].startswith(f"progressive (combing {combing(wall):.2f}, limit 0.85")
+    # noise rows are as far from their neighbours as from the rows two away, but no further than columns are
+    noise = np.random.default_rng(2).integers(0, 255, (48, 64)).astype(np.float32)
+    assert combing(noise) > COMBING_LIMIT and not is_interlaced([RawFrame(0, noise)])[0]
+    assert anisotropy(combed) > 1.25 > 1.1 > anisotropy(wall)
     assert is_interlaced([RawFrame(0, wall, interlaced=True)])[0]  # the decoder's word for it
 
 

@@ -220,3 +220,21 @@ def test_a_tee_whose_free_solve_turned_off_its_angle_is_suspect():
     assert t1.rating == SUSPECT and "T1's free solve turned 1.40 deg from a tee's angle" in t1.reasons[0]
     assert t1.figures["tee_free_angle_deg"] == 88.6
     assert t2.rating == GOOD  # held by no more than its sockets deflect
+
+
+def test_a_dropped_pass_whose_axes_still_turn_is_suspect():
+    from types import SimpleNamespace as NS
+
+    from pipemap.backend.evidence import DroppedPass
+    from pipemap.config import QualitySettings
+    from pipemap.quality import network_verdict
+
+    kfs, poses = _keyframes_on_a_cylinder(0.2, 20, 0.02)
+    sections = [NS(number=0, first=0, last=9, kind="junction", scale="cylinder", linked=True),
+                NS(number=1, first=10, last=19, kind="junction", scale="cylinder", linked=True)]
+    dropped = [DroppedPass("T1", 0, 9, 5.06, "not a junction"), DroppedPass("T2", 10, 19, 0.3, "not a junction")]
+    q = network_verdict(sections, [], kfs, poses, [], [], [], None, 0.2, QualitySettings(), 0.6, dropped=dropped)
+    turned, flicker = q.sections
+    assert turned.rating == SUSPECT
+    assert turned.reasons == ["the axes turn across it where nothing branches (T1 dropped), by 5.1 deg (limit 2.0 deg)"]
+    assert flicker.rating == GOOD  # classification flicker: the axes run on

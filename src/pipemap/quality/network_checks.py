@@ -82,10 +82,11 @@ def _path_length(poses: np.ndarray, first: int, last: int, cumulative: bool = Fa
 
 def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_sections, junctions, joins, revisit,
                     radius: float, q: QualitySettings, route_length_m: float,
-                    wall: tuple[np.ndarray, np.ndarray, float] | None = None) -> RunVerdict:
+                    wall: tuple[np.ndarray, np.ndarray, float] | None = None, dropped=()) -> RunVerdict:
     """The rating of every VO section of a network run and of the run's loop closure. `wall`: the map's points
     and their track ids and the sections' Huber threshold (bundle.huber_m), which give long sections' free radius
-    stretch by stretch (section_free_radius)."""
+    stretch by stretch (section_free_radius). `dropped`: the junction passes dropped for showing no junction
+    (backend/evidence.DroppedPass), whose turn the map keeps."""
     mapped = {m.number: m for m in mapped_sections}
     if wall is not None and any(_path_length(poses, s.first, s.last) > FREE_RADIUS_STRETCH_RADII * radius
                                 for s in vo_sections if s.kind == "straight"):
@@ -98,6 +99,7 @@ def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_s
         by_section.setdefault(w.section, []).append(w)
     junction_of = {(j.first, j.last): j for j in junctions}
     join_of = {r.junction: r for r in joins}
+    dropped_of = {(d.first, d.last): d for d in dropped}
     out, gaps = [], []
     for s in vo_sections:
         kfs = keyframes[s.first:s.last + 1]
@@ -117,6 +119,11 @@ def network_verdict(vo_sections, windows, keyframes, poses: np.ndarray, mapped_s
                              wall)
         else:
             j = junction_of.get((s.first, s.last))
+            d = dropped_of.get((s.first, s.last))
+            if j is None and d is not None and np.isfinite(d.angle_deg):
+                v.checks.append(above("unexplained turn", d.angle_deg, (q.unexplained_turn_deg, math.inf),
+                                      f"the axes turn across it where nothing branches ({d.id} dropped), by",
+                                      fmt=lambda x: f"{x:.1f} deg"))
             if j is not None:
                 v.figures["junction"] = j.id
                 v.figures["placed_by"] = j.method
