@@ -191,6 +191,27 @@ class Dataset:
                     log.drops.append((item.index, dropped))
             yield self._frame(item, gain_correct, repeated, dropped)
 
+    def frames_at(self, indices) -> Iterator[Frame]:
+        """The readable frames of the sorted image `indices`, each once, in order, gain-corrected (not flagged
+        repeated or dropped). An image folder reads each; a video is streamed over their span and only they
+        are converted."""
+        indices = sorted({int(i) for i in indices})
+        if not indices:
+            return
+        if self.image_paths is not None:
+            for i in indices:
+                yield self.read(i)
+            return
+        wanted = frozenset(indices)
+        if isinstance(self.source, VideoFile):
+            items = self.source.stream(indices[0], indices[-1] + 1, wanted=wanted)
+        else:
+            items = self.source.stream(indices[0], indices[-1] + 1)
+        for item in items:
+            if not isinstance(item, Damage) and item.index in wanted:
+                self._check_size(item)
+                yield self._frame(item, True)
+
     def scan(self, progress: Callable[[int, int], None] | None = None) -> FootageLog:
         """Read every frame once: how many are readable, repeated, dropped and damaged."""
         log = FootageLog()

@@ -34,6 +34,25 @@ def test_every_frame_is_the_right_one_streamed_or_sought(tmp_path, frames40, nam
         assert np.array_equal(ds.read(i).image, frames[i].image), i
     with pytest.raises(IndexError):
         ds.read(40)
+    # a few frames streamed over their span, the others decoded but not converted: the same pictures
+    some = [3, 4, 17, 30]
+    assert [(f.index, f.image.tobytes()) for f in ds.frames_at(some)] == \
+        [(i, frames[i].image.tobytes()) for i in some]
+
+
+@pytest.mark.parametrize("codec, fmt", [("libx264", "yuv420p"), ("mjpeg", "yuvj420p"), ("mpeg4", "yuv420p")])
+def test_grey_by_table_is_ffmpegs_own_conversion(tmp_path, frames40, codec, fmt):
+    import av
+
+    from pipemap.footage.video import grey
+
+    write_video(tmp_path / "run.avi", frames40, codec)
+    with av.open(str(tmp_path / "run.avi")) as c:
+        for k, frame in enumerate(c.decode(video=0)):
+            assert frame.format.name == fmt
+            ref = frame.to_ndarray(format="gray").astype(np.float32)
+            got = grey(frame)
+            assert got.dtype == np.float32 and np.array_equal(got, ref), k
 
 
 def test_times_come_from_pts_and_gaps_are_drops(tmp_path, frames40):

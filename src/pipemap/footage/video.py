@@ -51,6 +51,39 @@ class VideoIndex:
 
 
 _INDEX_CACHE: dict[tuple, VideoIndex] = {}
+# 8-bit formats whose first plane is the luma: their grey picture is a table lookup of it
+_LUMA_FIRST = frozenset({"gray", "yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p", "yuv411p",
+                         "yuv410p", "yuv440p", "yuvj440p", "nv12", "nv21"})
+_GREY_TABLES: dict[tuple, np.ndarray] = {}
+
+
+def _grey_table(fmt: str, color_range: int) -> np.ndarray:
+    """(256,) float32: the grey value FFmpeg's own conversion gives each luma value (its range expansion),
+    found once by converting a picture holding every luma value."""
+    import av
+
+    key = (fmt, color_range)
+    if key not in _GREY_TABLES:
+        ramp = av.VideoFrame(256, 2, fmt)
+        for k, plane in enumerate(ramp.planes):
+            rows = np.full((plane.height, plane.line_size), 128, np.uint8)
+            if k == 0:
+                rows[:, :256] = np.arange(256, dtype=np.uint8)
+            plane.update(rows.tobytes())
+        ramp.color_range = color_range
+        _GREY_TABLES[key] = ramp.to_ndarray(format="gray")[0, :256].astype(np.float32)
+    return _GREY_TABLES[key]
+
+
+def grey(frame) -> np.ndarray:
+    """A decoded picture as float32 grey on the 0..255 scale, exactly as FFmpeg converts it to grey; for 8-bit
+    luma-first formats by table from the luma plane (a fifth of the conversion's time at 720x576)."""
+    fmt = frame.format.name
+    if fmt not in _LUMA_FIRST:
+        return frame.to_ndarray(format="gray").astype(np.float32)
+    plane = frame.planes[0]
+    luma = np.frombuffer(plane, np.uint8).reshape(-1, plane.line_size)[:frame.height, :frame.width]
+    return _grey_table(fmt, frame.color_range)[luma]
 # codecs whose pictures are predicted from earlier ones (motion-compensated); MJPEG, FFV1 and the like code each
 # picture alone
 PREDICTED_CODECS = frozenset({"h264", "hevc", "mpeg4", "mpeg2video", "mpeg1video", "h263", "msmpeg4v2", "msmpeg4v3",
@@ -245,17 +278,19 @@ class VideoFile:
     def read(self, index: int) -> RawFrame:
         return read_from_stream(self, index)
 
-    def stream(self, start: int, stop: int) -> Iterator[RawFrame | Damage]:
+    def stream(self, start: int, stop: int, wanted: frozenset | None = None) -> Iterator[RawFrame | Damage]:
+        """As FrameSource.stream; `wanted`: only these indices are handed out as frames (the others are decoded,
+        as the pictures after them need, but not converted)."""
         idx = self.index()
         stop = min(stop, idx.count)
         if start < stop:
             if idx.pts is None:
-                yield from self._stream_in_decoding_order(idx, start, stop)
+                yield from self._stream_in_decoding_order(idx, start, stop, wanted)
             else:
                 try:
-                    yield from self._stream_by_pts(idx, start, stop, seek=start > 0)
+                    yield from self._stream_by_pts(idx, start, stop, seek=start > 0, wanted=wanted)
                 except _SeekMissed:
-                    yield from self._stream_by_pts(idx, start, stop, seek=False)
+                    yield from self._stream_by_pts(idx, start, stop, seek=False, wanted=wanted)
         if stop == idx.count and start <= stop:
             end = self.cut()
             if end is not None:
@@ -276,7 +311,8 @@ class VideoFile:
             return Damage(str(self.path), idx.count, 0, "truncated", "are missing: the file is cut short")
         return None
 
-    def _stream_by_pts(self, idx: VideoIndex, start: int, stop: int, seek: bool) -> Iterator[RawFrame | Damage]:
+    def _stream_by_pts(self, idx: VideoIndex, start: int, stop: int, seek: bool,
+                       wanted: frozenset | None = None) -> Iterator[RawFrame | Damage]:
         import av
 
         slot_of = idx.slots
@@ -324,8 +360,9 @@ class VideoFile:
                             yield from holes(stop)
                             return
                         yield from holes(i)
-                        yield RawFrame(i, frame.to_ndarray(format="gray").astype(np.float32), idx.top_field_first,
-                                       keyframes.fresh(frame), bool(frame.interlaced_frame))
+                        fresh = keyframes.fresh(frame)
+                        if wanted is None or i in wanted:
+                            yield RawFrame(i, grey(frame), idx.top_field_first, fresh, bool(frame.interlaced_frame))
                         want = i + 1
                         if want >= stop:
                             return
@@ -334,7 +371,8 @@ class VideoFile:
                 failed.update({i: reason for i in range(want, stop) if i not in failed})
         yield from holes(stop)
 
-    def _stream_in_decoding_order(self, idx: VideoIndex, start: int, stop: int) -> Iterator[RawFrame | Damage]:
+    def _stream_in_decoding_order(self, idx: VideoIndex, start: int, stop: int,
+                                  wanted: frozenset | None = None) -> Iterator[RawFrame | Damage]:
         """Frames numbered as they come out of the decoder; a packet it rejects is simply absent,
         so damage shows as fewer frames at the end rather than as a hole in place."""
         import av
@@ -358,10 +396,9 @@ class VideoFile:
                         good = trust.frame(frame)
                         fresh = keyframes.fresh(frame)
                         if i >= start:
-                            if good:
-                                yield RawFrame(i, frame.to_ndarray(format="gray").astype(np.float32),
-                                               idx.top_field_first, fresh, bool(frame.interlaced_frame))
-                            else:
+                            if good and (wanted is None or i in wanted):
+                                yield RawFrame(i, grey(frame), idx.top_field_first, fresh, bool(frame.interlaced_frame))
+                            elif not good:
                                 yield Damage(str(self.path), i, 1, "undecodable", _DEPENDENT)
                         i += 1
             except av.error.FFmpegError as exc:

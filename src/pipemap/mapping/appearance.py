@@ -272,13 +272,11 @@ def _frames_at(dataset: Dataset, indices: np.ndarray, rows: np.ndarray) -> Itera
                 last = i
             yield frame, k
         return
-    if not len(indices):
-        return
     want: dict[int, list[int]] = {}
     for i, k in zip(indices.tolist(), rows.tolist()):
         want.setdefault(i, []).append(k)
-    for frame in dataset.frames(start=int(indices[0]), stop=int(indices[-1]) + 1):
-        for k in want.get(frame.index, ()):
+    for frame in dataset.frames_at(want):
+        for k in want[frame.index]:
             yield frame, k
 
 
