@@ -223,6 +223,10 @@ class BundleSettings(_Section):
                                            "tee_angle_within_deg, is held at the allowance's nearer end")
     tee_angle_within_deg: float = Field(2.0, ge=0, description="a free angle further than this from every tee angle "
                                         "stands (a wye, a lateral, an 87.5 deg junction)")
+    tee_hold_axes: str = Field("auto", pattern="^(auto|ends|sections)$", description="the axes a held tee angle "
+                               "lies between: the end cylinders the free solve used (ends), the two sections' whole "
+                               "axes (sections), or each side's end cylinder unless it turns from its section's axis "
+                               "by more than tee_angle_allowance_deg (auto)")
     tee_angle_exact_codecs: list[str] = Field(["h264"], description="on video in these codecs (FFmpeg's names) from "
                                               "a camera that sees the wall beside it, a tee's solve is held at the "
                                               "tee angle itself, with no allowance: there the tracks lag the motion "

@@ -36,6 +36,7 @@ from pipemap.camera.base import CameraModel
 from pipemap.config import Settings
 from pipemap.errors import PipemapError
 from pipemap.frontend.tracks import Keyframe
+from pipemap.geometry.cylinder import Cylinder
 
 
 @dataclass
@@ -113,7 +114,7 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
         rows = order[sel]  # the junction's points in the map
         try:
             res, free = _solve_pass(out, j, rows, obs, (lo, hi, r_pose, b_pose), red_cyl, blue_cyl, camera, radius,
-                                    settings, exact_angles)
+                                    settings, exact_angles, (red.cylinder, blue.cylinder))
         except (ValueError, np.linalg.LinAlgError) as exc:
             reports.append(JoinReport(j.id, f"kept the VO chaining: the tee solve failed ({exc})"))
             continue
@@ -147,7 +148,8 @@ def join_sections(pipe_map: PipeMap, active: list[np.ndarray], camera: CameraMod
 
 
 def _solve_pass(out: PipeMap, j, rows: np.ndarray, obs: Observations, span: tuple[int, int, int, int], red_cyl,
-                blue_cyl, camera: CameraModel, radius: float, settings: Settings, exact_angles: bool):
+                blue_cyl, camera: CameraModel, radius: float, settings: Settings, exact_angles: bool,
+                whole=(None, None)):
     """(the junction solve's result, its free solve): keyframes lo..hi with P_r, P_b at r_pose, b_pose (`span`),
     the map's points `rows`. A tee whose free angle lies off its tee angle (`_held_angle`) is solved again from
     the free solution with the angle held."""
@@ -173,12 +175,37 @@ def _solve_pass(out: PipeMap, j, rows: np.ndarray, obs: Observations, span: tupl
     res = free = solve(out.poses[lo:hi + 1], out.points[rows], red_cyl, blue_cyl)
     held = None if j.type == "elbow" else _held_angle(free.model.angle_deg, settings, exact_angles)
     if held is not None and np.isfinite(free.rms_px) and np.all(np.isfinite(free.poses)):
-        # from the free solve, which the held one refines (the cylinders as its model has them, relative to P_r and
-        # P_b: the world ones sit where P_b was before it)
-        res = solve(free.poses, np.where(np.isfinite(free.points), free.points, out.points[rows]),
-                    free.model.red, free.model.blue, free.model, np.radians(held))
+        # from the free solve, which the held one refines
+        points = np.where(np.isfinite(free.points), free.points, out.points[rows])
+        red_axis, blue_axis = _held_axes((red_cyl, blue_cyl), whole, settings)
+        if red_axis is red_cyl and blue_axis is blue_cyl:  # the end cylinders as the free model has them
+            res = solve(free.poses, points, free.model.red, free.model.blue, free.model, np.radians(held))
+        else:  # world cylinders; the blue one where the free solve put its section
+            T = free.blue_transform
+            blue_axis = Cylinder(T[:3, :3] @ blue_axis.origin + T[:3, 3], T[:3, :3] @ blue_axis.direction,
+                                 blue_axis.radius)
+            res = solve(free.poses, points, red_axis, blue_axis, None, np.radians(held))
         res.blue_transform = res.blue_transform @ free.blue_transform
     return res, free
+
+
+def _held_axes(ends, whole, settings: Settings):
+    """(red, blue) cylinders a held tee angle lies between (`bundle.tee_hold_axes`): the end cylinders, the
+    sections' whole axes, or (auto) each side's end cylinder unless it turns from its section's whole axis by more
+    than bundle.tee_angle_allowance_deg, more than a joint deflects: there the VO's cameras bent the section's end
+    (paper-loop route A as H.264 seed 3: the section after T3 1.5 deg off its axis over its first metre)."""
+    mode = settings.bundle.tee_hold_axes
+    out = []
+    for end, axis in zip(ends, whole):
+        if mode == "ends" or axis is None or end is None:
+            out.append(end)
+        elif mode == "sections":
+            out.append(axis)
+        else:
+            a, b = end.direction / np.linalg.norm(end.direction), axis.direction / np.linalg.norm(axis.direction)
+            bend = np.degrees(np.arccos(np.clip(abs(float(a @ b)), -1.0, 1.0)))
+            out.append(end if bend <= settings.bundle.tee_angle_allowance_deg else axis)
+    return out[0], out[1]
 
 
 def _off_tee_angle(angle_deg: float, settings: Settings) -> float:
