@@ -177,7 +177,8 @@ def _solve_pass(out: PipeMap, j, rows: np.ndarray, obs: Observations, span: tupl
     if held is not None and np.isfinite(free.rms_px) and np.all(np.isfinite(free.poses)):
         # from the free solve, which the held one refines
         points = np.where(np.isfinite(free.points), free.points, out.points[rows])
-        red_axis, blue_axis = _held_axes((red_cyl, blue_cyl), whole, settings)
+        red_axis, blue_axis = _held_axes((red_cyl, blue_cyl), whole, settings,
+                                         (out.poses[r_pose, :3, 3], out.poses[b_pose, :3, 3]))
         if red_axis is red_cyl and blue_axis is blue_cyl:  # the end cylinders as the free model has them
             res = solve(free.poses, points, free.model.red, free.model.blue, free.model, np.radians(held))
         else:  # world cylinders; the blue one where the free solve put its section
@@ -189,22 +190,26 @@ def _solve_pass(out: PipeMap, j, rows: np.ndarray, obs: Observations, span: tupl
     return res, free
 
 
-def _held_axes(ends, whole, settings: Settings):
-    """(red, blue) cylinders a held tee angle lies between (`bundle.tee_hold_axes`): the end cylinders, the
-    sections' whole axes, or (auto) each side's end cylinder unless it turns from its section's whole axis by more
-    than bundle.tee_angle_allowance_deg, more than a joint deflects: there the VO's cameras bent the section's end
-    (paper-loop route A as H.264 seed 3: the section after T3 1.5 deg off its axis over its first metre)."""
+def _held_axes(ends, whole, settings: Settings, pivots=(None, None)):
+    """(red, blue) cylinders a held tee angle lies between (`bundle.tee_hold_axes`): the end cylinders, or their
+    sections' whole axes' directions, or (auto) each side's end cylinder unless it turns from its section's whole
+    axis by more than bundle.tee_angle_allowance_deg, more than a joint deflects: there the VO's cameras bent the
+    section's end (paper-loop route A as H.264 seed 3: the section after T3 1.5 deg off its axis over its first
+    metre). A whole axis's direction is turned onto the end cylinder's axis where it passes nearest the end camera
+    (`pivots`, its centre): the pipe lies where the end fit saw it and runs the way the section does."""
     mode = settings.bundle.tee_hold_axes
     out = []
-    for end, axis in zip(ends, whole):
+    for end, axis, pivot in zip(ends, whole, pivots):
         if mode == "ends" or axis is None or end is None:
             out.append(end)
-        elif mode == "sections":
-            out.append(axis)
-        else:
-            a, b = end.direction / np.linalg.norm(end.direction), axis.direction / np.linalg.norm(axis.direction)
-            bend = np.degrees(np.arccos(np.clip(abs(float(a @ b)), -1.0, 1.0)))
-            out.append(end if bend <= settings.bundle.tee_angle_allowance_deg else axis)
+            continue
+        a, b = end.direction / np.linalg.norm(end.direction), axis.direction / np.linalg.norm(axis.direction)
+        bend = np.degrees(np.arccos(np.clip(abs(float(a @ b)), -1.0, 1.0)))
+        if mode == "auto" and bend <= settings.bundle.tee_angle_allowance_deg:
+            out.append(end)
+            continue
+        at = end.origin if pivot is None else end.origin + a * float((np.asarray(pivot) - end.origin) @ a)
+        out.append(Cylinder(at, b if a @ b >= 0 else -b, end.radius))
     return out[0], out[1]
 
 
