@@ -31,7 +31,7 @@ from pipemap.backend.elbow import ARC_MARGIN_DEG, bend_of, model_bend, on_arc
 from pipemap.backend.junction import solve_junction
 from pipemap.backend.end_cylinders import fit_end_cylinder
 from pipemap.backend.network_map import section_points
-from pipemap.backend.pipe_map import PipeMap
+from pipemap.backend.pipe_map import PipeMap, moved_cylinder
 from pipemap.camera.base import CameraModel
 from pipemap.config import Settings
 from pipemap.errors import PipemapError
@@ -182,10 +182,8 @@ def _solve_pass(out: PipeMap, j, rows: np.ndarray, obs: Observations, span: tupl
         if red_axis is red_cyl and blue_axis is blue_cyl:  # the end cylinders as the free model has them
             res = solve(free.poses, points, free.model.red, free.model.blue, free.model, np.radians(held))
         else:  # world cylinders; the blue one where the free solve put its section
-            T = free.blue_transform
-            blue_axis = Cylinder(T[:3, :3] @ blue_axis.origin + T[:3, 3], T[:3, :3] @ blue_axis.direction,
-                                 blue_axis.radius)
-            res = solve(free.poses, points, red_axis, blue_axis, None, np.radians(held))
+            res = solve(free.poses, points, red_axis, moved_cylinder(free.blue_transform, blue_axis), None,
+                        np.radians(held))
         res.blue_transform = res.blue_transform @ free.blue_transform
     return res, free
 

@@ -69,7 +69,7 @@ class PipeMap:
         self.points[later] = self.points[later] @ R.T + t
         for m in self.sections:
             if m.first > k:
-                m.cylinder, m.start, m.end = (_moved_cylinder(T, c) for c in (m.cylinder, m.start, m.end))
+                m.cylinder, m.start, m.end = (moved_cylinder(T, c) for c in (m.cylinder, m.start, m.end))
                 if m.bend is not None:  # knots are axial coordinates and move with the axis; offsets are world vectors
                     m.bend = (m.bend[0], m.bend[1] @ R.T)
                 if m.cylinder is not None:
@@ -97,8 +97,9 @@ class PipeMap:
         self.poses = poses.copy()
 
 
-def _moved_cylinder(T: np.ndarray, c: Cylinder | None) -> Cylinder | None:
+def moved_cylinder(T: np.ndarray, c: Cylinder | None) -> Cylinder | None:
+    """The cylinder moved rigidly by T (4, 4, world -> world); None stays None."""
     return None if c is None else Cylinder(T[:3, :3] @ c.origin + T[:3, 3], T[:3, :3] @ c.direction, c.radius)
 
 
-__all__ = ["PipeMap", "first_seen"]
+__all__ = ["PipeMap", "first_seen", "moved_cylinder"]
