@@ -189,9 +189,12 @@ def track_and_classify(dataset: Dataset, settings: Settings,
         timing["extract"] += time.perf_counter() - t1
         return frame, features
 
-    # One worker keeps the reading, classifying and extracting in frame order, two frames ahead.
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    # One worker keeps the reading, classifying and extracting in frame order, two frames ahead; another finds a
+    # new keyframe's corners while the tracker matches its tracks.
+    with ThreadPoolExecutor(max_workers=1) as pool, ThreadPoolExecutor(max_workers=1) as helper:
         submit = pool.submit if _PREPARE_AHEAD.get() else (lambda work: _done(work()))
+        if _PREPARE_AHEAD.get() and hasattr(tracker, "beside"):
+            tracker.beside = helper.submit
         ahead = deque(submit(prepare) for _ in range(2))
         while True:
             item = ahead.popleft().result()
@@ -206,7 +209,7 @@ def track_and_classify(dataset: Dataset, settings: Settings,
             done += 1
             if progress is not None:
                 progress(done, total, len(keyframes))
-    keyframes.extend(settle(k) for k in tracker.finish())
+        keyframes.extend(settle(k) for k in tracker.finish())
     if classes is not None:
         hand_on(classes.update(keyframes, classifier.indices, classifier.raw, done=True))
     if done == 0:

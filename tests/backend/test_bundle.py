@@ -120,6 +120,19 @@ def test_sparse_block_sums_equal_bincount_sums():
     assert np.allclose(loop, block_sum(idx, blocks, 7), atol=1e-12)
 
 
+def test_camera_rows_times_a_matrix_equal_the_cameras_sums_of_outer_products_exactly():
+    rng = np.random.default_rng(5)
+    cams = rng.integers(0, 9, 300)
+    cams[cams == 4] = 5  # a camera that sees nothing
+    st = SchurStructure(cams, rng.integers(0, 40, 300), 9, 40)
+    rows, right = rng.normal(size=(300, 6)), rng.normal(size=(300, 11))
+    want = st.to_cam(rows[:, :, None] * right[:, None, :]).reshape(54, 11)
+    assert np.array_equal(st.cam_rows(rows) @ right, want)  # the same products summed in the same order
+    assert not np.any(want[24:30])
+    empty = SchurStructure(np.zeros(0, int), np.zeros(0, int), 2, 0)
+    assert (empty.cam_rows(np.zeros((0, 6))) @ np.zeros((0, 3))).shape == (12, 3)
+
+
 def test_observation_pairs_lists_each_pair_of_the_same_point_once():
     pt = np.array([3, 1, 3, 0, 1, 3, 2])
     a, b = observation_pairs(pt)

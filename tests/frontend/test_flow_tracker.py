@@ -188,3 +188,21 @@ def test_the_setting_decides_whether_features_ransac_left_out_continue(monkeypat
         assert continued > counted["kept"] + 0.8 * counted["left_out"]
     else:
         assert continued <= counted["kept"]
+
+
+def test_corners_found_beside_the_anchor_match_make_the_same_keyframes():
+    from concurrent.futures import ThreadPoolExecutor
+
+    camera = fisheye_camera(640, 480)
+    image = _texture(640, 480)
+    frames = [Frame(i, 0.1 * i, _shifted(image, 2.5 * i, 0.8 * i)) for i in range(12)]
+    inline = FlowTracker(camera)
+    made = [k for f in frames for k in inline.process(f)]
+    beside = FlowTracker(camera)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        beside.beside = pool.submit
+        made_beside = [k for f in frames for k in beside.process(f)]
+    assert len(made) >= 3 and len(made) == len(made_beside)
+    for a, b in zip(made, made_beside):
+        assert a.index == b.index
+        assert np.array_equal(a.keypoints, b.keypoints) and np.array_equal(a.track_ids, b.track_ids)

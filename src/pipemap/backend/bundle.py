@@ -47,7 +47,7 @@ from pipemap.geometry.cylinder import Cylinder, CylinderFit, distance_jacobians,
 from pipemap.geometry.rotations import skew
 from pipemap.geometry.se3 import as_rt, retract, to_matrix, world_to_camera
 from pipemap.solvers.robust import huber_cost, huber_weights, mad_inliers
-from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
+from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped, transposed
 from pipemap.solvers.staged_lm import solve_in_stages
 
 _B = BundleSettings()  # the problems' defaults are the settings' own
@@ -238,7 +238,7 @@ class BundleProblem:
         J_pose = np.empty((len(cam), 2, 6))
         J_pose[:, :, :3] = -Jproj
         J_pose[:, :, 3:] = Jproj @ skew(Xc)
-        J_point = Jproj @ np.swapaxes(Rc, 1, 2)
+        J_point = Jproj @ transposed(Rc)
         dist = Jd_point = Jd_cyl = None
         if self.uses_cylinder:
             dist, Jd_point, Jd_cyl, _ = distance_jacobians(state.points, state.cylinder, self.ref_R, self.ref_t,
@@ -290,7 +290,7 @@ class BundleProblem:
         s = self.sigma[inliers]
         w = huber_weights(np.linalg.norm(e, axis=1) / s, self.huber_px) / (s * s)
         wJp = w[:, None, None] * Jp
-        V = st.to_point(np.swapaxes(wJp, 1, 2) @ Jp)
+        V = st.to_point(transposed(wJp) @ Jp)
         gp = st.to_point(np.einsum("kai,ka->ki", wJp, e))
         on = st.on
         wJc = w[on, None, None] * Jc[on]

@@ -61,7 +61,7 @@ from pipemap.geometry.rotations import skew
 from pipemap.geometry.se3 import as_rt, compose, invert, retract, to_matrix, world_to_camera
 from pipemap.geometry.tee import TeeModel, adjoint_of_inverse
 from pipemap.solvers.robust import huber_cost, huber_weights, mad_inliers
-from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped
+from pipemap.solvers.schur import BlockSummer, NormalEquations, SchurStructure, solve_damped, transposed
 from pipemap.solvers.staged_lm import solve_in_stages
 
 _B = BundleSettings()  # the problems' defaults are the settings' own
@@ -363,9 +363,9 @@ class JunctionProblem:
         e = uv - self.obs.pixels[st.inliers]
         w = huber_weights(np.linalg.norm(e, axis=1), self.huber_px)
         J_pose = np.concatenate([-Jproj, Jproj @ skew(Xc)], axis=2)  # (K, 2, 6)
-        J_point = Jproj @ np.swapaxes(Rc, 1, 2)
+        J_point = Jproj @ transposed(Rc)
         wJp = w[:, None, None] * J_point
-        V = st.to_point(np.swapaxes(wJp, 1, 2) @ J_point)
+        V = st.to_point(transposed(wJp) @ J_point)
         gp = st.to_point(np.einsum("kai,ka->ki", wJp, e))
         on = st.on
         wJc = w[on, None, None] * J_pose[on]

@@ -88,9 +88,11 @@ def local_quadratic_motion(src: np.ndarray, dst: np.ndarray, at: np.ndarray, nei
         if cols != last:
             rows, last = np.arange(m), cols
             good, coef = np.zeros(m, bool), np.zeros((m, cols, 2))
-        good[rows], coef[rows], w_rows = _fit(X[rows, :, :cols], Y[rows], w[rows], max_residual_px)
-        changed = np.any(w_rows != w[rows], axis=1)
-        w[rows] = w_rows
+        every = len(rows) == m
+        at_rows = slice(None) if every else rows  # a slice takes no copy of X
+        good[at_rows], coef[at_rows], w_rows = _fit(X[at_rows, :, :cols], Y[at_rows], w[at_rows], max_residual_px)
+        changed = np.any(w_rows != w[at_rows], axis=1)
+        w[at_rows] = w_rows
         rows = rows[changed]
     # A point at the edge of its neighbourhood (the rim of the view, the dark far end of the pipe)
     # would take its second derivatives from an extrapolation.

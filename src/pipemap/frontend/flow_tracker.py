@@ -26,7 +26,9 @@ one is followed from the keyframe itself.
 
 from __future__ import annotations
 
+from concurrent.futures import Future
 from dataclasses import dataclass
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -97,6 +99,9 @@ class FlowTracker(FeatureTracker):
         self._rows = np.zeros(0, np.intp)  # keyframe rows still followed
         self._positions = np.zeros((0, 2), np.float32)  # and where they are in self._last
         self._velocities = np.zeros((0, 2))  # and how fast they moved there (px/s)
+        # Runs a keyframe's corner detection beside its anchor match (a thread pool's submit); None: in turn.
+        # Either way the same corners.
+        self.beside: Callable[..., Future] | None = None
 
     def extract(self, frame: Frame) -> FlowFrame:
         s = self.s
@@ -220,9 +225,23 @@ class FlowTracker(FeatureTracker):
     def _keyframe_corners(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(the frame as the anchor match sees it, Harris corners, their bearings) of a frame that becomes a
         keyframe."""
-        _, image, points = self.corners(frame)
+        image, found = self._keyframe_corners_beside(frame)
+        return (image,) + found.result()
+
+    def _keyframe_corners_beside(self, frame: Frame) -> tuple[np.ndarray, Future]:
+        """(the frame as the anchor match sees it, the future (Harris corners, their bearings)), the corners
+        found beside the caller where `beside` is given."""
+        view, image, mask = self.corner_views(frame)
+        if self.beside is not None:
+            return image, self.beside(self._corner_bearings, view, mask)
+        done: Future = Future()
+        done.set_result(self._corner_bearings(view, mask))
+        return image, done
+
+    def _corner_bearings(self, view: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        points = self.detect(view, mask)
         bearings, _ = self.camera.unproject(points)
-        return image, points, bearings.reshape(-1, 3)
+        return points, bearings.reshape(-1, 3)
 
     def _start_flow(self, data: FlowFrame) -> Keyframe | None:
         image, points, bearings = self._keyframe_corners(data.frame)
@@ -245,7 +264,7 @@ class FlowTracker(FeatureTracker):
         """The followed frame as the next keyframe; None when its pose cannot be found."""
         s = self.s
         kf = self._kf_features
-        image, corners, corner_bearings = self._keyframe_corners(m.data.frame)
+        image, detected = self._keyframe_corners_beside(m.data.frame)
         rows, positions, velocities = m.rows, m.positions, m.velocities
         carried = None
         if s.anchor_refine:  # the anchor match first: RANSAC then sees each feature where its first patch is
@@ -275,6 +294,7 @@ class FlowTracker(FeatureTracker):
         rows, positions, bearings = rows[consistent], positions[consistent], bearings[consistent]
         velocities = velocities[consistent]
         # Corners of the frame where no track continues start new ones.
+        corners, corner_bearings = detected.result()
         if len(positions) and len(corners) and s.duplicate_px > 0:
             d, _ = cKDTree(positions).query(corners, k=1)
             fresh = d > s.duplicate_px

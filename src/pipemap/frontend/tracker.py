@@ -121,6 +121,12 @@ class FeatureTracker:
     def corners(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The frame as matching sees it (blurred as set, lighting flattened), as the anchor match sees it
         (`frontend.anchor_lighting`) and its Harris corners (N, 2)."""
+        image, anchor_image, mask = self.corner_views(frame)
+        return image, anchor_image, self.detect(image, mask)
+
+    def corner_views(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(the frame as matching sees it, as the anchor match sees it, where corners may lie): `corners` less
+        the detection, so that the detection can run beside the anchor match."""
         s = self.s
         raw = np.ascontiguousarray(frame.image, dtype=np.float32)
         if s.smooth_sigma_px > 0:
@@ -132,10 +138,14 @@ class FeatureTracker:
         if s.flatten_lighting:
             image, lit = flatten_lighting(raw, s.lighting_sigma_px, s.dark_level, contrast_limit=s.contrast_limit)
             mask = mask & lit
-        points, _ = detect_corners(image, mask, tuple(s.regions), s.corners_per_region, s.harris_k, s.harris_block_px,
-                                   min_distance_px=s.min_distance_px, quality=s.harris_quality)
         anchor_image = image if s.anchor_lighting == "flattened" else log_brightness(raw)
-        return image, anchor_image, points
+        return image, anchor_image, mask
+
+    def detect(self, image: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Harris corners (N, 2) of a view `corner_views` gave."""
+        s = self.s
+        return detect_corners(image, mask, tuple(s.regions), s.corners_per_region, s.harris_k, s.harris_block_px,
+                              min_distance_px=s.min_distance_px, quality=s.harris_quality)[0]
 
     def continue_motion(self, R: np.ndarray, t: np.ndarray, inliers: np.ndarray, bearings_i: np.ndarray,
                         bearings_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

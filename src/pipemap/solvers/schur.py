@@ -17,6 +17,12 @@ import scipy.sparse as sp
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 
+def transposed(blocks: np.ndarray) -> np.ndarray:
+    """Each block (..., m, n) transposed, laid out contiguously: numpy's stacked matrix products with it run two
+    to four times faster than with a transposed view, and give the same values."""
+    return np.ascontiguousarray(np.swapaxes(blocks, -1, -2))
+
+
 def block_sum(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
     """Sum blocks (K, ...) into n bins by index (K,): out[i] = sum of blocks[index == i]."""
     shape = blocks.shape[1:]
@@ -55,6 +61,22 @@ class SchurStructure:
         self.to_cam = BlockSummer(self.obs_cam, n_cams)
         self.to_point = BlockSummer(self.obs_pt, n_points)
         self.to_pair = BlockSummer(self.obs_cam[self.a] * n_cams + self.obs_cam[self.b], n_cams * n_cams)
+        self._rows6: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def cam_rows(self, blocks: np.ndarray) -> sp.csr_matrix:
+        """The observations' rows (Kf, 6) as a sparse (6 C, Kf) matrix, row 6 c + i holding row i of camera c's
+        observations in their order: its product with a (Kf, q) matrix is to_cam of their outer products,
+        summed in the same order (the same values), without the (Kf, 6, q) products themselves."""
+        if self._rows6 is None:
+            by_cam = np.argsort(self.obs_cam, kind="stable")
+            counts = np.repeat(np.bincount(self.obs_cam, minlength=self.C), 6)  # per row (c, i)
+            indptr = np.r_[0, np.cumsum(counts)]
+            row = np.repeat(np.arange(6 * self.C), counts)
+            # entry j of row (c, i) is camera c's j-th observation, whose block starts at indptr[6 c] / 6
+            cols = by_cam[indptr[row - row % 6] // 6 + np.arange(len(row)) - indptr[row]]
+            self._rows6 = cols * 6 + row % 6, cols, indptr
+        take, cols, indptr = self._rows6
+        return sp.csr_matrix((blocks.reshape(-1)[take], cols, indptr), shape=(6 * self.C, len(self.obs_cam)))
 
 
 def observation_pairs(point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -120,8 +142,9 @@ def solve_damped(eq: NormalEquations, structure: SchurStructure, lam: float):
     if C:
         diagU = np.einsum("cii->ci", eq.U)
         Ud = eq.U + (lam * diagU)[:, :, None] * np.eye(6)
-        diag_blocks = Ud - st.to_cam(Y @ np.swapaxes(eq.W, 1, 2))
-        cross = st.to_pair(Y[st.a] @ np.swapaxes(eq.W[st.b], 1, 2))
+        Wt = transposed(eq.W)
+        diag_blocks = Ud - st.to_cam(Y @ Wt)
+        cross = st.to_pair(Y[st.a] @ Wt[st.b])
         cross = cross.reshape(C, C, 6, 6).transpose(0, 2, 1, 3).reshape(6 * C, 6 * C)
         S[: 6 * C, : 6 * C] = -(cross + cross.T)
         idx = np.arange(C)
@@ -136,7 +159,7 @@ def solve_damped(eq: NormalEquations, structure: SchurStructure, lam: float):
         S[6 * C:, 6 * C:] = eq.Ux + lam * np.diag(np.diag(eq.Ux)) - (A * np.einsum("mi,mi->m", r, P)[:, None]).T @ A
         if C:
             a = np.einsum("kij,kj->ki", Y, P[eq.obs_pt])
-            cx = st.to_cam(a[:, :, None] * A[eq.obs_pt][:, None, :]).reshape(6 * C, q)
+            cx = st.cam_rows(a) @ A[eq.obs_pt]
             S[: 6 * C, 6 * C:] = -cx
             S[6 * C:, : 6 * C] = -cx.T
         rhs[6 * C:] = -eq.gx + A.T @ np.einsum("mi,mi->m", r, eq.gp)
