@@ -88,8 +88,7 @@ def local_quadratic_motion(src: np.ndarray, dst: np.ndarray, at: np.ndarray, nei
         if cols != last:
             rows, last = np.arange(m), cols
             good, coef = np.zeros(m, bool), np.zeros((m, cols, 2))
-        every = len(rows) == m
-        at_rows = slice(None) if every else rows  # a slice takes no copy of X
+        at_rows = slice(None) if len(rows) == m else rows  # a slice takes no copy of X
         good[at_rows], coef[at_rows], w_rows = _fit(X[at_rows, :, :cols], Y[at_rows], w[at_rows], max_residual_px)
         changed = np.any(w_rows != w[at_rows], axis=1)
         w[at_rows] = w_rows
