@@ -21,11 +21,11 @@ network back end (`map_network`, as `pipemap run` runs it) then runs on each par
   of their place in the track (and 45 deg sector about the image centre, or band of colatitude), measured over the
   run: what a bias model per track age would gain at best.
 A forward-and-reverse run reports the distance driven forward (start to the farthest keyframe) and back against the
-truth; any other the Sim(3) scale of the keyframe positions, the ATE after it and every distance between junction
-centres. It also prints the tracking's error along and across the motion by place in the track (mean, RMS and
-median absolute value), and its mean along the motion by the direction of the observation from the image centre
-(45 degree sectors, image y pointing down), by colatitude and by the keyframe's true turn from the one before,
-relative to each track's first observation. No scale alignment anywhere. Writes
+truth; any other the Sim(3) scale of the keyframe positions, the ATE after it, every distance between junction
+centres and each elbow's angle. It also prints the tracking's error along and across the motion by place in the
+track (mean, RMS and median absolute value), and its mean along the motion by the direction of the observation from
+the image centre (45 degree sectors, image y pointing down), by colatitude and by the keyframe's true turn from the
+one before, relative to each track's first observation. No scale alignment anywhere. Writes
 benchmarks/results/exact_observations.json.
 """
 
@@ -220,7 +220,8 @@ def judged(net, G: np.ndarray, network) -> dict:
     pairs = [100 * (np.linalg.norm(a - b) / np.linalg.norm(truth[i] - truth[j]) - 1)
              for n, (a, i) in enumerate(found) for b, j in found[n + 1:] if i != j]
     return {"sim3_scale": s, "ate_mm": 1000 * ate, "junction_distances_pct": pairs,
-            "max_abs_pct": float(np.max(np.abs(pairs))) if pairs else None}
+            "max_abs_pct": float(np.max(np.abs(pairs))) if pairs else None,
+            "elbow_angles_deg": [round(float(j.angle_deg), 3) for j in net.tees if j.type == "elbow"]}
 
 
 _COLATITUDES = (0, 30, 45, 60, 70, 80, 85, 90, 180)  # deg, bands of the mean error along the motion by colatitude

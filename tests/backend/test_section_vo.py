@@ -336,3 +336,16 @@ def test_a_tail_whose_points_left_the_wall_keeps_the_steps_its_images_show():
     vo._X[:600][tail] = o + (vo._X[:600][tail] - o) * np.array([2.0, 2.0, 1.0])
     vo.s = vo.s.model_copy(update={"tail_image_step": None})
     assert vo._rescale_tail(tids, 0, 40, np.eye(3), truth[0])[0] == pytest.approx(0.5, rel=0.05)
+
+
+def test_the_cylinder_term_can_stop_short_of_the_wall_ahead_of_a_window():
+    """With `wall_ahead_m` a window's cylinder term holds only the points up to that far ahead of its last
+    keyframe along the pipe; by default every point."""
+    vo, tids, c = _tail_state(0.0, 1.0)
+    vo._metric = True
+    X = vo._X[tids]
+    assert vo._straight_wall(tids, 0, 20, 40).all()
+    vo.s = load_settings(overrides=["straight_vo.wall_ahead_m=0.1"]).straight_vo
+    wall = vo._straight_wall(tids, 0, 20, 40)
+    assert 0 < wall.sum() < len(tids)
+    assert np.array_equal(wall, X[:, 2] <= c[20, 2] + 0.1)

@@ -487,7 +487,7 @@ class StraightVO:
         if n < self.s.min_window_keyframes or last <= self._solved_until:
             return
         ks, rows, pixels, uniq, inv = self._window_observations(first, last)
-        wall = self._straight_wall(uniq, first, sec.last)
+        wall = self._straight_wall(uniq, first, last, sec.last)
         if wall.sum() < self.s.min_window_points:
             return
         R = np.stack(self.R[first:last + 1])
@@ -534,17 +534,21 @@ class StraightVO:
         uniq, inv = np.unique(tids, return_inverse=True)
         return ks, rows, pixels, uniq, inv
 
-    def _straight_wall(self, uniq: np.ndarray, first: int, end: int) -> np.ndarray:
-        """(len(uniq),) bool: the points on the straight section's wall, those no further than `end_wall_ahead_m`
-        ahead of its last keyframe `end` when the window runs on past it."""
+    def _straight_wall(self, uniq: np.ndarray, first: int, last: int, end: int) -> np.ndarray:
+        """(len(uniq),) bool: the points the window's cylinder term holds: those no further than `wall_ahead_m`
+        ahead of its last keyframe `last`, nor than `end_wall_ahead_m` ahead of the section's last keyframe `end`
+        when the window runs on past it; every point before the section has a metric scale."""
         wall = np.ones(len(uniq), bool)
-        if end + 1 >= len(self.c) or not self._metric:
+        if not self._metric:
             return wall
-        u = self.c[end] - self.c[first]
-        if not np.linalg.norm(u) > 0:
-            return wall
-        u = u / np.linalg.norm(u)
-        return (self._X[uniq] - self.c[end]) @ u <= self.s.end_wall_ahead_m
+        limits = [] if self.s.wall_ahead_m is None else [(last, self.s.wall_ahead_m)]
+        if end + 1 < len(self.c):
+            limits.append((end, self.s.end_wall_ahead_m))
+        for k, ahead in limits:
+            u = self.c[k] - self.c[first]
+            if np.linalg.norm(u) > 0:
+                wall &= (self._X[uniq] - self.c[k]) @ (u / np.linalg.norm(u)) <= ahead
+        return wall
 
     def _window_cylinder(self, uniq: np.ndarray, first: int, last: int, R: np.ndarray, wall: np.ndarray,
                          end: int):
