@@ -292,6 +292,16 @@ class StraightVOSettings(_Section):
                                        "Sim(3) scale 0.99975 -> 1.00002, ATE 0.86 -> 0.27 mm; tracked, five of "
                                        "six runs within 0.1 % (three by default), but paper-loop route A seed 0 "
                                        "Table I 0.040 -> 0.14 %: not the default (README, Junctions)")
+    wall_inward_m: float | None = Field(0.001, gt=0, description="a window's cylinder term holds the wall ahead "
+                                        "of its last keyframe only as far as no clock sector of it comes in by "
+                                        "more than this (median, and by five of its standard errors) from the "
+                                        "cylinder of the wall just behind: where the pipe bends ahead (None: "
+                                        "all of it; backend/wall_reach.py). Paired against None, the same "
+                                        "tracks: elbow-cross B seed 2 Table I 0.169 -> 0.079 %, B seed 1 0.117 "
+                                        "-> 0.095 %, eight of ten junction runs within 0.1 % against seven, "
+                                        "paper-loop route A seeds 0 / 1 0.040 / 0.067 -> 0.040 / 0.058 %")
+    wall_slice_m: float = Field(0.04, gt=0, description="length of the slices of wall ahead that wall_inward_m "
+                                "judges, half-overlapping")
     beside_tracking: bool = Field(True, description="run in a second process while the front end tracks, fed "
                                   "each keyframe once its class is final (the same result; not in a batch's "
                                   "runs, whose workers keep every core busy already)")

@@ -44,6 +44,7 @@ from scipy.optimize import minimize_scalar
 from pipemap.backend.bundle import BundleProblem, Observations
 from pipemap.backend.resection import resect
 from pipemap.backend.triangulate import triangulate_rays
+from pipemap.backend.wall_reach import straight_reach
 from pipemap.camera.base import CameraModel
 from pipemap.config import Settings
 from pipemap.frontend.angular import pixel_angle
@@ -537,13 +538,19 @@ class StraightVO:
     def _straight_wall(self, uniq: np.ndarray, first: int, last: int, end: int) -> np.ndarray:
         """(len(uniq),) bool: the points the window's cylinder term holds: those no further than `wall_ahead_m`
         ahead of its last keyframe `last`, nor than `end_wall_ahead_m` ahead of the section's last keyframe `end`
-        when the window runs on past it; every point before the section has a metric scale."""
+        when the window runs on past it, nor beyond where the wall ahead of `last` comes in as a bend's does
+        (`wall_inward_m`, backend/wall_reach.py); every point before the section has a metric scale."""
         wall = np.ones(len(uniq), bool)
         if not self._metric:
             return wall
         limits = [] if self.s.wall_ahead_m is None else [(last, self.s.wall_ahead_m)]
         if end + 1 < len(self.c):
             limits.append((end, self.s.end_wall_ahead_m))
+        u = self.c[last] - self.c[first]
+        if self.s.wall_inward_m is not None and np.linalg.norm(u) > 0:
+            limits.append((last, straight_reach(self._X[uniq], self.c[last], u, self.radius,
+                                                inward_m=self.s.wall_inward_m, slice_m=self.s.wall_slice_m,
+                                                huber=self.b.huber_m)))
         for k, ahead in limits:
             u = self.c[k] - self.c[first]
             if np.linalg.norm(u) > 0:
