@@ -299,7 +299,10 @@ class StraightVOSettings(_Section):
                                         "all of it; backend/wall_reach.py). Paired against None, the same "
                                         "tracks: elbow-cross B seed 2 Table I 0.169 -> 0.079 %, B seed 1 0.117 "
                                         "-> 0.095 %, eight of ten junction runs within 0.1 % against seven, "
-                                        "paper-loop route A seeds 0 / 1 0.040 / 0.067 -> 0.040 / 0.058 %")
+                                        "paper-loop route A seeds 0 / 1 0.040 / 0.067 -> 0.040 / 0.058 %. Only "
+                                        "for a camera that sees the wall beside it (widest colatitude 90 deg or "
+                                        "more): a forward camera sees only the wall ahead, and cut there cctv-"
+                                        "loop route B seed 1 went 0.156 -> 0.229 %")
     wall_slice_m: float = Field(0.04, gt=0, description="length of the slices of wall ahead that wall_inward_m "
                                 "judges, half-overlapping")
     beside_tracking: bool = Field(True, description="run in a second process while the front end tracks, fed "

@@ -166,6 +166,10 @@ class StraightVO:
         narrow = not camera.sees_beside()
         self._drift_check = self.s.scale_drift is not None and narrow
         self._resection = self.s.resection_min_points is not None and narrow
+        # The wall ahead is all a forward camera sees of a window's pipe: cut at a bend's first sign it left the
+        # cylinder too little (cctv-loop route B seeds 1 / 2, the same tracks: Table I 0.156 / 0.193 -> 0.229 /
+        # 0.198 %). A fisheye sees the wall beside it.
+        self._bend_check = self.s.wall_inward_m is not None and not narrow
         self._resected = False  # the newest keyframe's pose was refined against its scene points (or resection is off)
         self._wall = None  # the current section's wall as its last window solve left it
         self._ending: SectionReport | None = None  # a straight section whose final window waits (`end_lookahead`)
@@ -547,7 +551,7 @@ class StraightVO:
         if end + 1 < len(self.c):
             limits.append((end, self.s.end_wall_ahead_m))
         u = self.c[last] - self.c[first]
-        if self.s.wall_inward_m is not None and np.linalg.norm(u) > 0:
+        if self._bend_check and np.linalg.norm(u) > 0:
             limits.append((last, straight_reach(self._X[uniq], self.c[last], u, self.radius,
                                                 inward_m=self.s.wall_inward_m, slice_m=self.s.wall_slice_m,
                                                 huber=self.b.huber_m)))
