@@ -550,9 +550,9 @@ class StraightVO:
         limits = [] if self.s.wall_ahead_m is None else [(last, self.s.wall_ahead_m)]
         if end + 1 < len(self.c):
             limits.append((end, self.s.end_wall_ahead_m))
-        u = self.c[last] - self.c[first]
-        if self._bend_check and np.linalg.norm(u) > 0:
-            limits.append((last, straight_reach(self._X[uniq], self.c[last], u, self.radius,
+        travel = self.c[last] - self.c[first]
+        if self._bend_check and np.linalg.norm(travel) > 0:
+            limits.append((last, straight_reach(self._X[uniq], self.c[last], travel, self.radius,
                                                 inward_m=self.s.wall_inward_m, slice_m=self.s.wall_slice_m,
                                                 huber=self.b.huber_m)))
         for k, ahead in limits:
