@@ -302,7 +302,10 @@ class StraightVOSettings(_Section):
                                         "paper-loop route A seeds 0 / 1 0.040 / 0.067 -> 0.040 / 0.058 %. Only "
                                         "for a camera that sees the wall beside it (widest colatitude 90 deg or "
                                         "more): a forward camera sees only the wall ahead, and cut there cctv-"
-                                        "loop route B seed 1 went 0.156 -> 0.229 %")
+                                        "loop route B seed 1 went 0.156 -> 0.229 %. Not on predicted video "
+                                        "(H.264, MPEG-4): the codec's lag brings the wall just ahead in and "
+                                        "fisheye-straight as H.264 seed 2 went -0.054 -> -0.271 % (pipeline."
+                                        "straight_vo_settings)")
     wall_slice_m: float = Field(0.04, gt=0, description="length of the slices of wall ahead that wall_inward_m "
                                 "judges, half-overlapping")
     beside_tracking: bool = Field(True, description="run in a second process while the front end tracks, fed "

@@ -62,3 +62,23 @@ def test_pieces_offset_behind_the_camera_do_not_cut_the_wall_ahead():
     far_piece = _straight(rng, -2.5, -0.8, 12000) + np.array([0.004, 0.0, 0.0])
     near = _straight(rng, -0.8, 0.6, 9000)
     assert _reach(np.vstack([far_piece, near]), rng) == np.inf
+
+
+def test_the_bend_cut_is_off_on_predicted_video():
+    """On H.264 the codec's lag brings the wall just ahead of the newest keyframe in by sector, and the cut made
+    there shortened a straight pipe's windows (fisheye-straight seed 2: -0.054 -> -0.271 %): predicted video keeps
+    the whole wall ahead; images and intra-coded video keep the cut, and the user's own setting stands."""
+    from types import SimpleNamespace
+
+    from pipemap.config import Settings
+    from pipemap.pipeline import straight_vo_settings
+
+    s = Settings()
+    assert s.straight_vo.wall_inward_m == 0.001
+    on_video = straight_vo_settings(s, SimpleNamespace(predicted=True))
+    assert on_video.straight_vo.wall_inward_m is None
+    assert on_video.straight_vo.wall_slice_m == s.straight_vo.wall_slice_m and on_video.bundle == s.bundle
+    assert s.straight_vo.wall_inward_m == 0.001  # the run's own settings are left as they were
+    assert straight_vo_settings(s, SimpleNamespace(predicted=False)) is s
+    s.straight_vo.wall_inward_m = 0.002
+    assert straight_vo_settings(s, SimpleNamespace(predicted=False)).straight_vo.wall_inward_m == 0.002
