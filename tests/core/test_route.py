@@ -167,3 +167,29 @@ def test_an_elbow_with_solved_axes_takes_its_arc_from_them():
     assert line.chainage_end == arc.chainage_start
     with pytest.raises(PipemapError, match="run.json: junction_passes E1: axes must be two non-zero 3-vectors"):
         legs_and_joints(pieces, sections, [dict(elbow, axes=[[1.0, 0.0, 0.0]])])
+
+
+def test_a_crawler_that_reverses_out_keeps_its_pipe_in_the_route_and_the_wall_pieces():
+    """A crawler that drives 4.5 m in and reverses out ends where it began: the section's wall and the route still
+    run from the first camera to where it turned back (before, the wall piece was dropped as too short and a
+    route ending behind its start had no segment)."""
+    from pipemap.backend.network_map import camera_extent
+    from pipemap.inspection.network_route import network_route
+
+    out = np.linspace(0.0, 4.5, 46)
+    h = np.concatenate([out, out[::-1][1:] - 0.02])  # back 2 cm behind the start
+    assert camera_extent(h) == (0.0, 4.5)
+    assert camera_extent(np.linspace(3.0, 1.0, 21)) == (3.0, 1.0)  # driven the other way along the axis
+    assert camera_extent(np.array([0.0, -0.001, 1.0, 2.0])) == (0.0, 2.0)
+
+    poses = np.tile(np.eye(4), (len(h), 1, 1))
+    poses[:, 2, 3] = h
+    pieces = [{"name": "S0", "start": [0.0, 0.0, 0.0], "end": [0.0, 0.0, 4.5], "radius": 0.2, "up": [0, -1, 0]}]
+    sections = [{"section": 0, "first_keyframe": 0, "last_keyframe": len(h) - 1}]
+    route = network_route(pieces, sections, [], poses, 0.2, up_choice=[0.0, -1.0, 0.0])
+    assert len(route.segments) == 1
+    assert route.segments[0].chainage_end == pytest.approx(4.5, abs=1e-9)
+    # cameras that cover none of the pipe's length give no route, not a route without a segment
+    still = np.tile(np.eye(4), (3, 1, 1))
+    assert network_route(pieces, [dict(sections[0], last_keyframe=2)], [], still, 0.2, up_choice=[0.0, -1.0, 0.0]) \
+        is None

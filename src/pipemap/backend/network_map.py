@@ -45,7 +45,7 @@ class MappedSection:
     cylinder: Cylinder | None  # fitted to the whole section
     start: Cylinder | None  # fitted to the first length_m, relative to the first pose
     end: Cylinder | None  # ... the last length_m, relative to the last pose
-    start_h: float = 0.0  # axial extent of the section's camera centres on `cylinder`
+    start_h: float = 0.0  # axial extent of the section's camera centres on `cylinder` (camera_extent)
     end_h: float = 0.0
     start_length_m: float = 0.0  # camera path the start / end cylinder was fitted over (0: no cylinder)
     end_length_m: float = 0.0
@@ -223,12 +223,19 @@ def map_sections(sections, keyframes: list[Keyframe], poses: np.ndarray, points:
             setattr(ms, end, None if fit is None else fit.cylinder)
             setattr(ms, f"{end}_length_m", 0.0 if fit is None else (0.5 if shortened else 1.0) * length_m)
         if ms.cylinder is not None:
-            h = ms.cylinder.axial(C)
-            ms.start_h, ms.end_h = float(h[0]), float(h[-1])
+            ms.start_h, ms.end_h = camera_extent(ms.cylinder.axial(C))
         else:
             ms.problems.append("too few points or too short for a cylinder fit")
         out.append(ms)
     return out
+
+
+def camera_extent(h: np.ndarray) -> tuple[float, float]:
+    """(start, end) of a section's pipe from its camera centres' axial coordinates `h` in order: from the first
+    camera to the one farthest from it. A crawler that drives in and reverses out ends where it began; its
+    section's wall still runs to where it turned back."""
+    h = np.asarray(h, float)
+    return float(h[0]), float(h[int(np.argmax(np.abs(h - h[0])))])
 
 
 def axes_meeting_point(a: Cylinder, b: Cylinder) -> tuple[np.ndarray, float, float]:
@@ -300,6 +307,7 @@ def _no_cylinder_between(sections, i: int, by_number: dict) -> bool:
 
 
 __all__ = ["MappedSection", "MappedJunction", "map_sections", "map_junctions", "axes_meeting_point", "wall_pieces",
+           "camera_extent",
            "section_points", "name_junctions", "stretch_cylinder",
            "STRAIGHT_THROUGH_DEG"]
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipemap.backend.loop_closure import reanchor
-from pipemap.backend.network_map import MappedJunction, MappedSection
+from pipemap.backend.network_map import MappedJunction, MappedSection, camera_extent
 from pipemap.frontend.tracks import Keyframe
 from pipemap.geometry.cylinder import Cylinder
 
@@ -73,8 +73,7 @@ class PipeMap:
                 if m.bend is not None:  # knots are axial coordinates and move with the axis; offsets are world vectors
                     m.bend = (m.bend[0], m.bend[1] @ R.T)
                 if m.cylinder is not None:
-                    h = m.cylinder.axial(self.poses[[m.first, m.last], :3, 3])
-                    m.start_h, m.end_h = float(h[0]), float(h[1])
+                    m.start_h, m.end_h = camera_extent(m.cylinder.axial(self.poses[m.first:m.last + 1, :3, 3]))
         for j in self.junctions:
             if j.first > k:
                 j.centroid = R @ j.centroid + t

@@ -49,14 +49,27 @@ def _unit_axes(axes, name) -> np.ndarray:
 def network_route(pieces: list[dict], sections: list[dict], passes: list[dict], poses: np.ndarray, radius: float,
                   up_choice="image") -> Route | None:
     """The route of a network result and its 12 o'clock estimate (keyframe poses T_wc (K, 4, 4)); None without
-    a straight piece."""
+    a straight piece or where the cameras cover none of it."""
     legs, joints = legs_and_joints(pieces, sections, passes)
     if not legs or not len(poses):
         return None
     starts = np.array([leg.start for leg in legs])
     ends = np.array([leg.end for leg in legs])
     up, record = estimate_up(poses[:, :3, :3], poses[:, :3, 3], starts, ends, radius, up_choice)
-    return build_route(legs, joints, poses[0, :3, 3], poses[-1, :3, 3], up, radius, record)
+    route = build_route(legs, joints, poses[0, :3, 3], _route_end(legs[-1], sections, poses), up, radius, record)
+    return route if route.segments else None
+
+
+def _route_end(leg: Leg, sections: list[dict], poses: np.ndarray) -> np.ndarray:
+    """The camera centre the route runs to: of the last leg's section's cameras, the one farthest along the leg.
+    That is the last camera, unless the robot turned back in that pipe (a crawler that drives in and reverses out
+    ends where it began, and a route to its last camera would hold none of the pipe)."""
+    span = {f"S{s['section']}": (int(s["first_keyframe"]), int(s["last_keyframe"])) for s in sections}
+    first, last = span.get(leg.name, (len(poses) - 1, len(poses) - 1))
+    C = poses[max(first, 0):min(last, len(poses) - 1) + 1, :3, 3]
+    if not len(C):
+        return poses[-1, :3, 3]
+    return C[int(np.argmax((C - leg.start) @ leg.direction))]
 
 
 __all__ = ["legs_and_joints", "network_route"]
