@@ -82,3 +82,32 @@ def test_a_ring_of_the_light_is_kept_out_of_features_but_not_out_of_view():
     assert m.view[ring].mean() > 0.99  # classification and maps see the wall there
     assert len(m.regions) >= 1 and all(y < 40 for _, y, *_ in m.regions)  # only the text is an overlay
     assert not m.view[_text_box()].all()
+
+
+def _unlit_end(frames, seed: int = 1):
+    """The frames with the dark far end of a straight pipe at the centre, as a codec leaves it: the light falling
+    off towards the centre, and there grey levels of a few units in 8 x 8 blocks that stay where they are."""
+    rng = np.random.default_rng(seed)
+    blocks = np.kron(rng.integers(1, 9, (8, 8)), np.ones((8, 8))).astype(np.float32)  # 64 x 64 px
+    v, u = np.mgrid[0:H, 0:W]
+    light = np.clip((np.hypot(u - 160, v - 120) - 24.0) / 70.0, 0.02, 1.0).astype(np.float32)
+    for img in frames:
+        img = img * light
+        img[88:152, 128:192] = np.where(light[88:152, 128:192] <= 0.1, blocks, img[88:152, 128:192])
+        yield img
+
+
+def test_the_unlit_far_end_is_kept_from_features_but_not_from_view():
+    """The unlit far end's static blocks are no overlay: masked from view, they hid it from the classification,
+    and a straight pipe as MJPEG became a junction from end to end. The bright text stays an overlay."""
+    inside = np.ones((H, W), np.uint8)
+    m = find_static_mask(_unlit_end(_frames(40, 7.0)), inside, lighting_sigma_px=4.0, grow_px=4)
+    end = np.zeros((H, W), bool)
+    end[108:132, 148:172] = True
+    assert m.unlit == 1 and m.to_dict()["unlit_regions"] == 1
+    assert not m.usable[end].any()  # no feature on it
+    assert m.view[end].all()  # the classification and the maps see it
+    assert not m.view[_text_box()].all() and any(x < 40 and y < 40 for x, y, *_ in m.regions)
+    assert all(not (120 <= x <= 200 and 80 <= y <= 160) for x, y, *_ in m.regions)
+    off = find_static_mask(_unlit_end(_frames(40, 7.0)), inside, lighting_sigma_px=4.0, grow_px=4, dark_share=None)
+    assert off.unlit == 0 and not off.view[end].any()  # as before: taken for an overlay

@@ -10,7 +10,14 @@ counter, a clock) keeps its outline and the characters that change least; closin
 height joins them into one region. The mask is grown by the front end's largest template, so no
 feature's patch reaches into the overlay.
 
-Compressed footage has static edges of its own that are no overlay: where the light falls off
+Compressed footage has static edges of its own that are no overlay. Where the pipe is unlit (the dark far end of
+a straight pipe, always round the image centre), the codec quantises the little light there into blocks that stay
+where they are: on fisheye-straight as MJPEG (quality 8) they made a 94 x 86 px region at the centre, which
+masked hid the far end from the classification, and every frame of the straight pipe was a junction (forward /
+reverse -1.8 / +8.9 %). A region whose brightest static pixels (99th percentile of the frames' mean) stay below
+the classification's dark level (`dark_share` of the grey range) is unlit pipe, no overlay: kept from the features
+like the rings below but left to the classification and the maps. Text meant to be read is bright.
+And where the light falls off
 towards the rim, the codec quantises the smooth ramp into steps that stay where they are, rings
 round the image centre (tee-pass-loop as MJPEG: a dotted ring that, joined and grown, masked 15 %
 of the image, the rim where a tee's side opening shows, and the tee passed straight through was
@@ -36,8 +43,9 @@ class StaticMask:
     static: np.ndarray  # (H, W) bool: the static structure found, before growing
     frames: int  # frames it was found from
     regions: list[tuple[int, int, int, int]]  # bounding boxes (x, y, w, h) of the static regions
-    view: np.ndarray  # (H, W) bool: `usable` and the light's rings, which are wall (classification, maps)
+    view: np.ndarray  # (H, W) bool: `usable`, the light's rings and unlit regions: pipe (classification, maps)
     rings: int  # regions that are rings of the light's fall-off
+    unlit: int = 0  # regions that are unlit pipe whose codec blocks stay put
 
     @property
     def masked_fraction(self) -> float:
@@ -45,7 +53,7 @@ class StaticMask:
 
     def to_dict(self) -> dict:
         return {"frames_used": self.frames, "masked_fraction": round(self.masked_fraction, 5),
-                "regions": [list(r) for r in self.regions], "light_rings": self.rings}
+                "regions": [list(r) for r in self.regions], "light_rings": self.rings, "unlit_regions": self.unlit}
 
 
 def _gradient(img: np.ndarray) -> np.ndarray:
@@ -81,16 +89,20 @@ def find_static_mask(images: Iterable[np.ndarray], inside: np.ndarray, lighting_
                      min_ratio: float = 0.9, min_edge: float = 8.0, join_px: int = 9, grow_px: int = 8,
                      min_frames: int = 8, centre: tuple[float, float] | None = None,
                      ring_width_px: float = 4.0, ring_share: float = 0.5, ring_within_deg: float = 20.0,
-                     ring_max_edge: float = 40.0) -> StaticMask | None:
+                     ring_max_edge: float = 40.0, dark_share: float | None = 0.25) -> StaticMask | None:
     """The static overlay of `images` (grey frames spread along the run) within `inside` (the
     camera's image). None when fewer than `min_frames` frames were given (nothing can be told).
     `centre`: where the light's rings are centred (the principal point; None: the middle of `inside`);
-    `ring_*`: what makes a region such a ring and no overlay (_light_rings; edges in flattened units)."""
+    `ring_*`: what makes a region such a ring and no overlay (_light_rings; edges in flattened units);
+    `dark_share`: a region whose brightest pixels stay below this share of the grey range is unlit (None: none is)."""
     total = None
     grad_sum = None
+    grey = None
     n = 0
     for img in images:
-        flat, _ = flatten_lighting(np.asarray(img, np.float32), lighting_sigma_px)
+        img = np.asarray(img, np.float32)
+        grey = img.astype(np.float64) if grey is None else grey + img
+        flat, _ = flatten_lighting(img, lighting_sigma_px)
         g = _gradient(flat)
         total = flat.astype(np.float64) if total is None else total + flat
         grad_sum = g.astype(np.float64) if grad_sum is None else grad_sum + g
@@ -117,7 +129,8 @@ def find_static_mask(images: Iterable[np.ndarray], inside: np.ndarray, lighting_
         centre = (float(xs.mean()), float(ys.mean())) if len(xs) else (inside.shape[1] / 2, inside.shape[0] / 2)
     ring = keep & _light_rings(gx, gy, labels, count, static, centre, ring_width_px, ring_share, ring_within_deg,
                                ring_max_edge)
-    overlay = keep & ~ring
+    unlit = keep & ~ring & _unlit(grey / n, labels, count, static, inside > 0, dark_share)
+    overlay = keep & ~ring & ~unlit
     regions = [tuple(int(v) for v in stats[i, :4]) for i in np.flatnonzero(overlay)]
 
     def grow(regions_kept: np.ndarray) -> np.ndarray:
@@ -128,4 +141,22 @@ def find_static_mask(images: Iterable[np.ndarray], inside: np.ndarray, lighting_
         return joined.astype(bool)
 
     # the rings stay out of the features' pixels: their steps stay put and would hold features back
-    return StaticMask(~grow(keep), static & keep[labels], n, regions, view=~grow(overlay), rings=int(ring.sum()))
+    return StaticMask(~grow(keep), static & keep[labels], n, regions, view=~grow(overlay), rings=int(ring.sum()),
+                      unlit=int(unlit.sum()))
+
+
+def _unlit(mean: np.ndarray, labels: np.ndarray, count: int, static: np.ndarray, inside: np.ndarray,
+           dark_share: float | None) -> np.ndarray:
+    """(count,) bool: the labelled regions whose static pixels' 99th percentile of the mean grey image `mean` lies
+    below the dark level, lo + dark_share (hi - lo) with lo, hi its 1st and 99th percentiles inside the image."""
+    out = np.zeros(count, bool)
+    if dark_share is None or not inside.any():
+        return out
+    lo, hi = np.percentile(mean[inside], [1.0, 99.0])
+    level = lo + dark_share * (hi - lo)
+    ys, xs = np.nonzero(static)
+    lab, value = labels[ys, xs], mean[ys, xs]
+    for i in np.unique(lab):
+        out[i] = np.percentile(value[lab == i], 99.0) < level
+    out[0] = False  # the background label
+    return out

@@ -54,7 +54,8 @@ def usable_mask(dataset: Dataset, settings: Settings) -> UsableMask:
         inside = valid_mask(dataset.camera, margin)
         centre = dataset.camera.project(np.array([0.0, 0.0, 1.0]))[0]  # the light's rings centre on the axis
         found = find_static_mask(_sample(dataset, fe.static_mask_frames), inside, s.lighting_sigma_px,
-                                 grow_px=margin, centre=(float(centre[0]), float(centre[1])))
+                                 grow_px=margin, centre=(float(centre[0]), float(centre[1])),
+                                 dark_share=settings.classification.dark_threshold)
         if found is None:
             note = "too few frames to tell what moves"
         elif found.masked_fraction > fe.static_mask_max_fraction:
