@@ -206,6 +206,21 @@ def test_collinear_keyframes_still_fix_the_roll_about_the_pipe(tmp_path):
     assert w.pieces[0].stats.max_mm < 0.01 and w.local.max_mm < 0.01
 
 
+def test_a_straight_run_is_aligned_globally_by_its_orientations_too(tmp_path):
+    # A straight run's keyframes lie on one line: an alignment by positions may roll the map about it (here by
+    # 0.5 rad, which the positions cannot see), and with the camera 4 cm below the pipe's axis that put a
+    # straight pipe driven in and out 4.5 mm off the wall globally, 0.5 mm piece by piece
+    result = _result(tmp_path / "out", _wall_points(np.random.default_rng(5)))
+    straight = read_tum(result / "trajectory.tum").subset(np.arange(30))
+    c0 = _truth().positions[0]
+    roll = exp_so3(np.array([0.5, 0.0, 0.0]))
+    wrong = Alignment(roll @ TRANSFORM.rotation, roll @ (TRANSFORM.translation - c0) + c0, 1.0)
+    moved = straight.positions @ wrong.rotation.T + wrong.translation
+    assert np.abs(moved - _truth().positions[:30]).max() < 1e-9  # the positions cannot tell
+    w = appearance_wall(result, NETWORK, straight, _truth(), wrong)
+    assert w.global_.max_mm < 0.01 and w.global_.within_2mm_pct == 100.0
+
+
 # -- through `pipemap evaluate` ---------------------------------------------------------------
 
 
