@@ -204,4 +204,5 @@ def test_a_section_driven_there_and_back_gets_its_cylinder():
     tilt = np.degrees(np.arccos(min(1.0, abs(m.cylinder.direction @ [1.0, 0, 0]))))
     o = m.cylinder.origin - m.cylinder.axial(np.zeros((1, 3)))[0] * m.cylinder.direction  # the axis at x = 0
     assert tilt < 0.02 and np.abs(o[1:]).max() < 0.0005
-    assert m.start_h is not None and abs((m.end_h - m.start_h) - s[-1]) < 0.002
+    # its wall runs from the first camera to where it turned back (camera_extent), not to the last camera
+    assert m.start_h is not None and abs((m.end_h - m.start_h) - s.max()) < 0.002
