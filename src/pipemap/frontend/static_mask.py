@@ -12,8 +12,8 @@ feature's patch reaches into the overlay.
 
 Compressed footage has static edges of its own that are no overlay. Where the pipe is unlit (the dark far end of
 a straight pipe, always round the image centre), the codec quantises the little light there into blocks that stay
-where they are: on fisheye-straight as MJPEG (quality 8) they made a 94 x 86 px region at the centre, which
-masked hid the far end from the classification, and every frame of the straight pipe was a junction (forward /
+where they are: on fisheye-straight as MJPEG (quality 8) they made a 94 x 86 px region at the centre that,
+masked, hid the far end from the classification, and every frame of the straight pipe was a junction (forward /
 reverse -1.8 / +8.9 %). A region whose brightest static pixels (99th percentile of the frames' mean) stay below
 the classification's dark level (`dark_share` of the grey range) is unlit pipe, no overlay: kept from the features
 like the rings below but left to the classification and the maps. Text meant to be read is bright.

@@ -15,7 +15,7 @@ def legs_and_joints(pieces: list[dict], sections: list[dict], passes: list[dict]
     """The straight legs (one per wall piece that unrolls, in order) and the junction passes between them: the
     pass whose keyframes lie after one leg's section and before the next one's; `gap` where there is none. An elbow
     pass with the axes its solve found (`axes`) joins by them at its vertex (its `centroid`)."""
-    span = {f"S{s['section']}": (int(s["first_keyframe"]), int(s["last_keyframe"])) for s in sections}
+    span = section_spans(sections)
     legs = [Leg(str(p["name"]), np.asarray(p["start"], float), np.asarray(p["end"], float))
             for p in pieces if p.get("unroll", True) and p.get("kind", "line") == "line"]
     joints = []
@@ -35,6 +35,11 @@ def legs_and_joints(pieces: list[dict], sections: list[dict], passes: list[dict]
                             float(bend) if bend is not None else float("nan"),
                             _unit_axes(axes, found["id"]) if elbow and axes is not None else None))
     return legs, joints
+
+
+def section_spans(sections: list[dict]) -> dict[str, tuple[int, int]]:
+    """Each straight section's (first, last) keyframe by its wall piece's name (S<number>)."""
+    return {f"S{s['section']}": (int(s["first_keyframe"]), int(s["last_keyframe"])) for s in sections}
 
 
 def _unit_axes(axes, name) -> np.ndarray:
@@ -64,12 +69,11 @@ def _route_end(leg: Leg, sections: list[dict], poses: np.ndarray) -> np.ndarray:
     """The camera centre the route runs to: of the last leg's section's cameras, the one farthest along the leg.
     That is the last camera, unless the robot turned back in that pipe (a crawler that drives in and reverses out
     ends where it began, and a route to its last camera would hold none of the pipe)."""
-    span = {f"S{s['section']}": (int(s["first_keyframe"]), int(s["last_keyframe"])) for s in sections}
-    first, last = span.get(leg.name, (len(poses) - 1, len(poses) - 1))
+    first, last = section_spans(sections).get(leg.name, (len(poses) - 1, len(poses) - 1))
     C = poses[max(first, 0):min(last, len(poses) - 1) + 1, :3, 3]
     if not len(C):
         return poses[-1, :3, 3]
     return C[int(np.argmax((C - leg.start) @ leg.direction))]
 
 
-__all__ = ["legs_and_joints", "network_route"]
+__all__ = ["legs_and_joints", "network_route", "section_spans"]
