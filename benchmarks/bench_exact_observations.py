@@ -17,6 +17,8 @@ network back end (`map_network`, as `pipemap run` runs it) then runs on each par
   inner / rim: exact plus the error of the observations within / beyond 85 deg of the optical axis;
   inner-along / rim-along: the same, only the error's part along the motion;
   noise: exact plus independent Gaussian noise of --noise-px (seeded);
+  with --on SEGMENT..., the pixel parts add their error only to the tracks whose point lies on those segments of
+  the network (a cross's other pipes seen through its openings, say), the rest exact;
   debiased / debiased-sector / debiased-colatitude: the tracked observations less the mean error along the motion
   of their place in the track (and 45 deg sector about the image centre, or band of colatitude), measured over the
   run: what a bias model per track age would gain at best.
@@ -53,13 +55,14 @@ PARTS = PIXEL_PARTS + ("debiased", "debiased-sector", "debiased-colatitude", "no
 _RIM_DEG = 85.0
 
 
-def wall_points(pieces, radius: float, origin: np.ndarray, rays: np.ndarray) -> np.ndarray:
+def wall_points(pieces, radius: float, origin: np.ndarray, rays: np.ndarray, which: bool = False):
     """(N, 3): where each ray (N, 3) from `origin` first meets the wall of the union of the pipes `pieces`
-    (straight segments), NaN where it meets none."""
+    (straight segments), NaN where it meets none; with `which`, also (N,) the index of the piece met (-1: none)."""
     rays = np.asarray(rays, float).reshape(-1, 3)
     best = np.full((len(rays), 3), np.nan)
     nearest = np.full(len(rays), np.inf)
-    for piece in pieces:
+    met = np.full(len(rays), -1)
+    for index, piece in enumerate(pieces):
         a = piece.axis / np.linalg.norm(piece.axis)
         v = origin - piece.start
         vp, dp = v - (v @ a) * a, rays - (rays @ a)[:, None] * a
@@ -72,8 +75,8 @@ def wall_points(pieces, radius: float, origin: np.ndarray, rays: np.ndarray) -> 
         for other in pieces:
             if other is not piece and hit.any():
                 hit[hit] &= ~_inside(other, radius, p[hit])
-        best[hit], nearest[hit] = p[hit], lam[hit]
-    return best
+        best[hit], nearest[hit], met[hit] = p[hit], lam[hit], index
+    return (best, met) if which else best
 
 
 def _inside(piece, radius: float, p: np.ndarray) -> np.ndarray:
@@ -85,20 +88,30 @@ def _inside(piece, radius: float, p: np.ndarray) -> np.ndarray:
 
 def exact_observations(front, camera, network, R: np.ndarray, C: np.ndarray) -> list[np.ndarray | None]:
     """Per keyframe: (N, 2) exact pixels of its observations, NaN where the track's point is unknown."""
+    return exact_observations_on_pipes(front, camera, network, R, C)[0]
+
+
+def exact_observations_on_pipes(front, camera, network, R: np.ndarray, C: np.ndarray):
+    """exact_observations, and per keyframe (N,) the id of the network segment each observation's point lies on
+    ('' where unknown; an arc's chords count as their arc)."""
     pieces = network.straight_pieces()
+    names = np.array([p.id.split("#")[0] for p in pieces] + [""])  # index -1: none
     points: dict[int, np.ndarray] = {}
-    out = []
+    pipe: dict[int, str] = {}
+    out, on = [], []
     for k, kf in enumerate(front.keyframes):
         new = [row for row, tid in enumerate(kf.track_ids.tolist()) if tid not in points]
-        found = wall_points(pieces, network.radius_m, C[k], kf.bearings[new] @ R[k].T)
+        found, met = wall_points(pieces, network.radius_m, C[k], kf.bearings[new] @ R[k].T, which=True)
         points.update(zip(kf.track_ids[new].tolist(), found))
+        pipe.update(zip(kf.track_ids[new].tolist(), names[met]))
+        on.append(np.array([pipe[t] for t in kf.track_ids.tolist()], dtype=object))
         X = np.array([points[t] for t in kf.track_ids.tolist()]).reshape(-1, 3)
         uv = np.full((len(X), 2), np.nan)
         known = np.all(np.isfinite(X), axis=1)
         if known.any():
             uv[known] = camera.project((X[known] - C[k]) @ R[k])[0]
         out.append(uv)
-    return out
+    return out, on
 
 
 def motion_and_place(front, exact: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -125,8 +138,9 @@ def motion_and_place(front, exact: list[np.ndarray]) -> tuple[list[np.ndarray], 
 
 
 def part_pixels(part: str, tracked: np.ndarray, exact: np.ndarray, motion: np.ndarray, place: np.ndarray,
-                centre_v: float, colatitude: np.ndarray | None = None) -> np.ndarray:
-    """One keyframe's pixels for `part` (see the module docstring)."""
+                centre_v: float, colatitude: np.ndarray | None = None, on: np.ndarray | None = None) -> np.ndarray:
+    """One keyframe's pixels for `part` (see the module docstring); `on` (N,) bool: only these observations take
+    the part's error (--on)."""
     error = tracked - exact
     along = (error * motion).sum(axis=1)[:, None] * motion
     keep = {"all": np.ones(len(error), bool), "exact": np.zeros(len(error), bool),
@@ -136,7 +150,8 @@ def part_pixels(part: str, tracked: np.ndarray, exact: np.ndarray, motion: np.nd
         keep.update(inner=colatitude < _RIM_DEG, rim=colatitude >= _RIM_DEG)
     which, _, component = (f"all-{part}" if part in ("along", "across") else part).partition("-")
     added = {"along": along, "across": error - along, "": error}[component]
-    added = np.where(keep[which][:, None], added, 0.0)
+    chosen = keep[which] if on is None else keep[which] & on
+    added = np.where(chosen[:, None], added, 0.0)
     out = exact + added
     return np.where(np.all(np.isfinite(exact), axis=1)[:, None], out, tracked)
 
@@ -274,7 +289,8 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
     }
 
 
-def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float = 0.3) -> dict:
+def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float = 0.3,
+            pipes: list[str] | None = None) -> dict:
     dataset = load_dataset(root)
     settings = load_settings(None, overrides)
     network = load_network(root / "ground_truth" / "network.yaml")
@@ -283,7 +299,8 @@ def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float 
     ts = np.asarray(gt.timestamps)
     idx = [int(np.argmin(np.abs(ts - k.timestamp))) for k in front.keyframes]
     R, C = gt.rotations[idx], gt.positions[idx]
-    exact = exact_observations(front, dataset.camera, network, R, C)
+    exact, pipe_of = exact_observations_on_pipes(front, dataset.camera, network, R, C)
+    on = [None] * len(exact) if not pipes else [np.isin(p, pipes) for p in pipe_of]
     motions, places = motion_and_place(front, exact)
     errors = errors_by_place_and_sector(front, dataset.camera, exact, motions, places)
     errors["along_motion_px_by_turn"] = errors_by_turn(front, exact, motions, places, R)
@@ -300,8 +317,8 @@ def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float 
         elif part == "noise":
             pixels = noisy(tracked, exact, noise_px, np.random.default_rng(0))
         else:
-            pixels = [part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2, col)
-                      for kf, uv, m, q, col in zip(tracked, exact, motions, places, colatitudes)]
+            pixels = [part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2, col, o)
+                      for kf, uv, m, q, col, o in zip(tracked, exact, motions, places, colatitudes, on)]
         for kf, px in zip(tracked, pixels):
             bearings, _ = dataset.camera.unproject(px)
             kfs.append(replace(kf, keypoints=px, bearings=bearings.reshape(-1, 3)))
@@ -326,12 +343,15 @@ def main() -> None:
     ap.add_argument("datasets", nargs="+")
     ap.add_argument("--parts", nargs="+", default=["all", "exact", "along", "across"], choices=PARTS)
     ap.add_argument("--noise-px", type=float, default=0.3, help="sigma of the noise part's Gaussian noise (px)")
+    ap.add_argument("--on", nargs="+", default=None, metavar="SEGMENT",
+                    help="the pixel parts add their error only to tracks whose point lies on these segments of "
+                         "ground_truth/network.yaml (an arc by its id)")
     ap.add_argument("--set", action="append", default=[], help="settings override section.key=value (repeatable)")
     ap.add_argument("--json-out", default=str(Path(__file__).parent / "results" / "exact_observations.json"))
     args = ap.parse_args()
     results = []
     for root in args.datasets:
-        r = measure(Path(root), args.parts, args.set, args.noise_px)
+        r = measure(Path(root), args.parts, args.set, args.noise_px, args.on)
         r["overrides"] = args.set
         print(f"{r['dataset']}: {r['keyframes']} keyframes, {100 * r['exact_share']:.1f} % of the observations "
               "with an exact projection; tracked error (px) by place in the track")

@@ -61,6 +61,23 @@ def test_rays_at_once_give_what_each_gives_alone():
     assert np.isfinite(together).all(axis=1).sum() > 40
 
 
+def test_a_ray_says_which_pipe_it_met():
+    origin = np.array([1.9, 0.0, 0.0])
+    rays = np.array([[0.6, 0.0, -0.8], [0.5, 0.5, 0.0], [1.0, 0.0, 0.0]])
+    rays /= np.linalg.norm(rays, axis=1)[:, None]
+    points, met = bench.wall_points(TEE, R, origin, rays, which=True)
+    assert met.tolist() == [0, 1, -1]  # the run's wall, the branch's through its opening, none down the run's end
+    np.testing.assert_array_equal(points, bench.wall_points(TEE, R, origin, rays))
+
+
+def test_a_part_on_chosen_pipes_leaves_the_other_tracks_exact():
+    exact = np.array([[100.0, 100.0], [300.0, 400.0]])
+    tracked = np.array([[100.3, 100.4], [299.0, 401.0]])
+    motion = np.array([[1.0, 0.0], [0.0, 1.0]])
+    got = bench.part_pixels("across", tracked, exact, motion, np.array([1, 4]), 240.0, on=np.array([False, True]))
+    np.testing.assert_allclose(got, [[100.0, 100.0], [299.0, 400.0]], atol=1e-12)
+
+
 def test_parts_hand_over_exact_pixels_plus_the_error_asked_for():
     exact = np.array([[100.0, 100.0], [300.0, 400.0], [np.nan, np.nan]])
     tracked = np.array([[100.3, 100.4], [299.0, 401.0], [50.0, 60.0]])
