@@ -304,6 +304,9 @@ def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float 
     motions, places = motion_and_place(front, exact)
     errors = errors_by_place_and_sector(front, dataset.camera, exact, motions, places)
     errors["along_motion_px_by_turn"] = errors_by_turn(front, exact, motions, places, R)
+    if pipes:  # the same figures for the chosen pipes' tracks alone
+        errors["on_pipes"] = errors_by_place_and_sector(
+            front, dataset.camera, [np.where(o[:, None], uv, np.nan) for uv, o in zip(exact, on)], motions, places)
     tracked = list(front.keyframes)
     out = {"dataset": root.name, "keyframes": len(tracked),
            "exact_share": float(np.mean(np.concatenate([np.all(np.isfinite(u), axis=1) for u in exact]))),
@@ -370,6 +373,12 @@ def main() -> None:
         for band, cells in r["along_motion_px_by_turn"].items():
             print(f"     {band:>8s}: {cells['keyframes']} keyframes  " + "  ".join(
                 f"{q} {c[0]:+.4f} ({c[1]})" for q, c in cells.items() if q != "keyframes"))
+        if "on_pipes" in r:
+            print(f"   the tracks on {' '.join(args.on)} alone, by place in the track:")
+            for key in ("observations", "along_motion_px", "along_rms_px", "across_motion_px", "across_rms_px"):
+                cells = (f"{p}: {v:+.4f}" if isinstance(v, float) else f"{p}: {v}"
+                         for p, v in r["on_pipes"][f"{key}_by_place"].items())
+                print(f"   {key.replace('_px', ''):<17s}" + " ".join(cells))
         results.append(r)
     summary = {"benchmark": "exact_observations", "machine": platform.platform(), "cpus": os.cpu_count(),
                "results": results}
