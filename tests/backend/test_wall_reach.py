@@ -34,7 +34,7 @@ def test_the_wall_ahead_ends_where_a_bend_begins(bend_radius):
     start = 0.3
     points = np.vstack([_straight(rng, -0.6, start, 6000), _bend(rng, start, bend_radius, 45, 3000)])
     reach = _reach(points, rng)
-    # the inner wall comes in by 1 mm sqrt(2 R_bend 1 mm) into the bend: 2.4-4.2 cm; a slice is 4 cm long
+    # the bend's outer wall comes in by 1 mm sqrt(2 R_bend 1 mm) into the bend: 2.4-4.2 cm; a slice is 4 cm long
     assert start - 0.04 <= reach <= start + np.sqrt(2 * bend_radius * 0.001)
 
 

@@ -6,9 +6,10 @@ window's cameras towards the bend, a few tenths of a degree over the last metre 
 angle and vertex with them. Where the pipe runs on through a tee, the wall ahead is still the same cylinder and
 holds the heading: it is worth keeping there.
 
-A bend shows in the wall ahead as one side coming in: the inner wall of a turning pipe is nearer the straight axis
-than its radius, by about x^2 / (2 R_bend) a distance x into the bend, while an opening (a branch, the pipe's end)
-only takes wall away or shows points beyond it. So the wall ahead is cut where, in a slice of it, the median
+A bend shows in the wall ahead as one side coming in: the bend's outer wall (the side the pipe turns away from,
+facing the camera) is nearer the straight axis than its radius, by about x^2 / (2 R_bend) a distance x into the
+bend, while an opening (a branch, the pipe's end) only takes wall away or shows points beyond it. So the wall
+ahead is cut where, in a slice of it, the median
 signed distance of the points in some sector of clock positions falls below -`inward_m` of the cylinder fitted
 to the wall just behind the camera, and clearly so for the points' scatter. Just behind: a run's pieces sag and
 meet with small offsets, so a cylinder fitted to a whole window's wall (metres of it) can miss the wall at its
