@@ -57,7 +57,7 @@ def test_rays_at_once_give_what_each_gives_alone():
     origin = np.array([1.9, 0.02, -0.03])
     together = bench.wall_points(TEE, R, origin, rays)
     alone = np.concatenate([bench.wall_points(TEE, R, origin, r) for r in rays])
-    np.testing.assert_array_equal(together, alone)
+    np.testing.assert_allclose(together, alone, rtol=0, atol=1e-12)  # the same sums, maybe in another order
     assert np.isfinite(together).all(axis=1).sum() > 40
 
 
@@ -155,3 +155,23 @@ def test_errors_by_turn_group_keyframes_by_their_true_rotation():
     assert sorted(got) == ["0..0.5", "4..6"]
     assert got["0..0.5"]["keyframes"] == 2 and got["4..6"]["keyframes"] == 1
     assert got["0..0.5"][1] == pytest.approx((-0.05, 1)) and got["4..6"][2] == pytest.approx((-0.1, 1))
+
+
+def test_a_picture_whose_young_observations_sit_off_as_a_whole_gives_that_rotation():
+    def about(axis, deg):
+        a, k = np.radians(deg), np.asarray(axis, float) / np.linalg.norm(axis)
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+    camera = fisheye_camera(640, 480)
+    rng = np.random.default_rng(3)
+    exact = np.column_stack([rng.uniform(80, 560, 60), rng.uniform(60, 420, 60)])  # some beyond the lens's circle
+    rays, _ = camera.unproject(exact)
+    offset = about([0.3, -1.0, 0.2], 0.15)  # the decoded picture's content turned by 0.15 deg
+    tracked, _ = camera.project(rays.reshape(-1, 3) @ offset.T)
+    R = np.array([np.eye(3), about([0, 1, 0], 5.0)])  # the keyframe turned 5 deg from the one before
+    front = SimpleNamespace(keyframes=[SimpleNamespace(keypoints=exact), SimpleNamespace(keypoints=tracked)])
+    got = bench.frame_rotations(front, camera, [exact, exact], [np.zeros(60, int), np.ones(60, int)], R)
+    expected = np.degrees(np.radians(0.15) * np.array([0.3, -1.0, 0.2]) / np.linalg.norm([0.3, -1.0, 0.2]))
+    assert got["4..180"]["keyframes"] == 1
+    np.testing.assert_allclose(got["4..180"]["mean_deg"], expected, atol=2e-4)
+    assert got["turns"][0]["keyframes"] == [1, 1] and got["turns"][0]["true_turn_deg"] == pytest.approx(5.0, abs=0.01)
