@@ -17,6 +17,8 @@ network back end (`map_network`, as `pipemap run` runs it) then runs on each par
   inner / rim: exact plus the error of the observations within / beyond 85 deg of the optical axis;
   inner-along / rim-along: the same, only the error's part along the motion;
   noise: exact plus independent Gaussian noise of --noise-px (seeded);
+  turns-exact: the tracked observations, exact in the keyframes within --turn-reach keyframes of one that turns
+  2 deg or more from the one before (where a junction's angle is set);
   with --on SEGMENT..., the pixel parts add their error only to the tracks whose point lies on those segments of
   the network (a cross's other pipes seen through its openings, say), the rest exact;
   debiased / debiased-sector / debiased-colatitude: the tracked observations less the mean error along the motion
@@ -53,7 +55,7 @@ from pipemap.trajectory import read_tum
 
 PIXEL_PARTS = ("all", "exact", "along", "across", "top", "bottom", "early", "late", "inner", "rim", "early-along",
                "early-across", "late-along", "late-across", "inner-along", "rim-along")
-PARTS = PIXEL_PARTS + ("debiased", "debiased-sector", "debiased-colatitude", "noise")
+PARTS = PIXEL_PARTS + ("debiased", "debiased-sector", "debiased-colatitude", "noise", "turns-exact")
 _RIM_DEG = 85.0
 
 
@@ -161,11 +163,16 @@ def part_pixels(part: str, tracked: np.ndarray, exact: np.ndarray, motion: np.nd
 _TURNS = (0.0, 0.5, 2.0, 4.0, 6.0, 8.0, 180.0)  # deg, bands of a keyframe's true rotation from the one before
 
 
+def true_turns_deg(R: np.ndarray) -> np.ndarray:
+    """(K,) each keyframe's true rotation from the keyframe before (deg; 0 for the first)."""
+    cos = (np.einsum("kij,kij->k", R[:-1], R[1:]) - 1.0) / 2.0  # trace(R_{k-1}^T R_k) = sum of elementwise products
+    return np.concatenate([[0.0], np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))])
+
+
 def errors_by_turn(front, exact, motions, places, R: np.ndarray) -> dict:
     """The tracked error's mean along the motion by place in the track (1-6), for keyframes grouped by their true
     rotation from the keyframe before (deg): a turn through a junction against the straight runs."""
-    cos = (np.einsum("kij,kij->k", R[:-1], R[1:]) - 1.0) / 2.0  # trace(R_{k-1}^T R_k) = sum of elementwise products
-    turn = np.concatenate([[0.0], np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))])
+    turn = true_turns_deg(R)
     out = {}
     for lo, hi in zip(_TURNS[:-1], _TURNS[1:]):
         ks = np.flatnonzero((turn >= lo) & (turn < hi))
@@ -186,7 +193,7 @@ def frame_rotations(front, camera, exact, places, R: np.ndarray) -> dict:
     the rotation between them), least squares on unit bearings. Independent errors of 0.5 px over 250 points give
     about 0.01 deg; a decoded picture whose content sits off as a whole gives more. Mean and standard deviation by
     the keyframe's true turn from the one before, and the sum over each run of turning keyframes (a junction)."""
-    rows = []
+    rows, turns = [], true_turns_deg(R)
     for k, (kf, uv, q) in enumerate(zip(front.keyframes, exact, places)):
         ok = np.all(np.isfinite(uv), axis=1) & (q == 1)
         if k == 0 or ok.sum() < 20:
@@ -198,8 +205,7 @@ def frame_rotations(front, camera, exact, places, R: np.ndarray) -> dict:
         # tracked - true = w x true = -[true]x w, stacked over the observations
         A = -np.cross(true[:, None, :], np.eye(3)[None, :, :]).transpose(0, 2, 1).reshape(-1, 3)
         w = np.linalg.lstsq(A, (tracked - true).ravel(), rcond=None)[0]
-        cos = (np.trace(R[k - 1].T @ R[k]) - 1.0) / 2.0
-        rows.append((k, float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))), *np.degrees(w)))
+        rows.append((k, float(turns[k]), *np.degrees(w)))
     if not rows:
         return {}
     a = np.array(rows)
@@ -215,6 +221,15 @@ def frame_rotations(front, camera, exact, places, R: np.ndarray) -> dict:
         out["turns"] = [{"keyframes": [int(r[0, 0]), int(r[-1, 0])], "true_turn_deg": round(float(r[:, 1].sum()), 2),
                          "sum_deg": r[:, 2:].sum(0).round(3).tolist()} for r in runs]
     return out
+
+
+def near_turns(R: np.ndarray, reach: int, turn_deg: float = 2.0) -> np.ndarray:
+    """(K,) bool: the keyframes within `reach` keyframes of one whose true rotation from the keyframe before is
+    `turn_deg` or more."""
+    turning = np.flatnonzero(true_turns_deg(R) >= turn_deg)
+    if not len(turning):
+        return np.zeros(len(R), bool)
+    return np.min(np.abs(np.arange(len(R))[:, None] - turning[None, :]), axis=1) <= reach
 
 
 def noisy(keyframes, exact: list[np.ndarray], sigma_px: float, rng: np.random.Generator) -> list[np.ndarray]:
@@ -331,7 +346,7 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
 
 
 def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float = 0.3,
-            pipes: list[str] | None = None) -> dict:
+            pipes: list[str] | None = None, turn_reach: int = 25) -> dict:
     dataset = load_dataset(root)
     settings = load_settings(None, overrides)
     network = load_network(root / "ground_truth" / "network.yaml")
@@ -361,6 +376,10 @@ def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float 
             pixels = [kf.keypoints - lag for kf, lag in zip(tracked, lags)]
         elif part == "noise":
             pixels = noisy(tracked, exact, noise_px, np.random.default_rng(0))
+        elif part == "turns-exact":
+            near = near_turns(R, turn_reach)
+            pixels = [np.where((near[k] & np.all(np.isfinite(uv), axis=1))[:, None], uv, kf.keypoints)
+                      for k, (kf, uv) in enumerate(zip(tracked, exact))]
         else:
             pixels = [part_pixels(part, kf.keypoints, uv, m, q, dataset.camera.height / 2, col, o)
                       for kf, uv, m, q, col, o in zip(tracked, exact, motions, places, colatitudes, on)]
@@ -388,6 +407,7 @@ def main() -> None:
     ap.add_argument("datasets", nargs="+")
     ap.add_argument("--parts", nargs="+", default=["all", "exact", "along", "across"], choices=PARTS)
     ap.add_argument("--noise-px", type=float, default=0.3, help="sigma of the noise part's Gaussian noise (px)")
+    ap.add_argument("--turn-reach", type=int, default=25, help="turns-exact: keyframes either side of a turning one")
     ap.add_argument("--on", nargs="+", default=None, metavar="SEGMENT",
                     help="the pixel parts add their error only to tracks whose point lies on these segments of "
                          "ground_truth/network.yaml (an arc by its id)")
@@ -396,7 +416,7 @@ def main() -> None:
     args = ap.parse_args()
     results = []
     for root in args.datasets:
-        r = measure(Path(root), args.parts, args.set, args.noise_px, args.on)
+        r = measure(Path(root), args.parts, args.set, args.noise_px, args.on, args.turn_reach)
         r["overrides"] = args.set
         print(f"{r['dataset']}: {r['keyframes']} keyframes, {100 * r['exact_share']:.1f} % of the observations "
               "with an exact projection; tracked error (px) by place in the track")

@@ -175,3 +175,13 @@ def test_a_picture_whose_young_observations_sit_off_as_a_whole_gives_that_rotati
     assert got["4..180"]["keyframes"] == 1
     np.testing.assert_allclose(got["4..180"]["mean_deg"], expected, atol=2e-4)
     assert got["turns"][0]["keyframes"] == [1, 1] and got["turns"][0]["true_turn_deg"] == pytest.approx(5.0, abs=0.01)
+
+
+def test_the_keyframes_near_a_turn_are_those_within_reach_of_a_turning_one():
+    def about_z(deg):
+        a = np.radians(deg)
+        return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    headings = [0.0, 0.1, 0.2, 0.3, 0.4, 3.4, 6.4, 6.5, 6.6, 6.7, 6.8, 6.9]  # keyframes 5 and 6 turn 3 deg each
+    near = bench.near_turns(np.array([about_z(h) for h in headings]), 2)
+    np.testing.assert_array_equal(np.flatnonzero(near), [3, 4, 5, 6, 7, 8])
+    assert not bench.near_turns(np.array([about_z(0.1 * k) for k in range(5)]), 2).any()
