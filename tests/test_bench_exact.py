@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from pipemap.geometry.rotations import exp_so3
 from pipemap.sim.presets import fisheye_camera
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_exact_observations.py"
@@ -159,9 +160,7 @@ def test_errors_by_turn_group_keyframes_by_their_true_rotation():
 
 def test_a_picture_whose_young_observations_sit_off_as_a_whole_gives_that_rotation():
     def about(axis, deg):
-        a, k = np.radians(deg), np.asarray(axis, float) / np.linalg.norm(axis)
-        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-        return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+        return exp_so3(np.radians(deg) * np.asarray(axis, float) / np.linalg.norm(axis))
     camera = fisheye_camera(640, 480)
     rng = np.random.default_rng(3)
     exact = np.column_stack([rng.uniform(80, 560, 60), rng.uniform(60, 420, 60)])  # some beyond the lens's circle
