@@ -18,7 +18,7 @@ network back end (`map_network`, as `pipemap run` runs it) then runs on each par
   inner-along / rim-along: the same, only the error's part along the motion;
   noise: exact plus independent Gaussian noise of --noise-px (seeded);
   turns-exact: the tracked observations, exact in the keyframes within --turn-reach keyframes of one that turns
-  2 deg or more from the one before (where a junction's angle is set);
+  --turn-deg (2) or more from the one before (where a junction's angle is set; a sweeping bend turns less);
   with --on SEGMENT..., the pixel parts add their error only to the tracks whose point lies on those segments of
   the network (a cross's other pipes seen through its openings, say), the rest exact;
   debiased / debiased-sector / debiased-colatitude: the tracked observations less the mean error along the motion
@@ -346,7 +346,7 @@ def errors_by_place_and_sector(front, camera, exact, motions, places) -> dict:
 
 
 def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float = 0.3,
-            pipes: list[str] | None = None, turn_reach: int = 25) -> dict:
+            pipes: list[str] | None = None, turn_reach: int = 25, turn_deg: float = 2.0) -> dict:
     dataset = load_dataset(root)
     settings = load_settings(None, overrides)
     network = load_network(root / "ground_truth" / "network.yaml")
@@ -377,7 +377,7 @@ def measure(root: Path, parts: list[str], overrides: list[str], noise_px: float 
         elif part == "noise":
             pixels = noisy(tracked, exact, noise_px, np.random.default_rng(0))
         elif part == "turns-exact":
-            near = near_turns(R, turn_reach)
+            near = near_turns(R, turn_reach, turn_deg)
             pixels = [np.where((near[k] & np.all(np.isfinite(uv), axis=1))[:, None], uv, kf.keypoints)
                       for k, (kf, uv) in enumerate(zip(tracked, exact))]
         else:
@@ -408,6 +408,8 @@ def main() -> None:
     ap.add_argument("--parts", nargs="+", default=["all", "exact", "along", "across"], choices=PARTS)
     ap.add_argument("--noise-px", type=float, default=0.3, help="sigma of the noise part's Gaussian noise (px)")
     ap.add_argument("--turn-reach", type=int, default=25, help="turns-exact: keyframes either side of a turning one")
+    ap.add_argument("--turn-deg", type=float, default=2.0, help="turns-exact: a keyframe turns when it turns this "
+                    "far (deg) from the one before")
     ap.add_argument("--on", nargs="+", default=None, metavar="SEGMENT",
                     help="the pixel parts add their error only to tracks whose point lies on these segments of "
                          "ground_truth/network.yaml (an arc by its id)")
@@ -416,7 +418,7 @@ def main() -> None:
     args = ap.parse_args()
     results = []
     for root in args.datasets:
-        r = measure(Path(root), args.parts, args.set, args.noise_px, args.on, args.turn_reach)
+        r = measure(Path(root), args.parts, args.set, args.noise_px, args.on, args.turn_reach, args.turn_deg)
         r["overrides"] = args.set
         print(f"{r['dataset']}: {r['keyframes']} keyframes, {100 * r['exact_share']:.1f} % of the observations "
               "with an exact projection; tracked error (px) by place in the track")
