@@ -184,3 +184,7 @@ def test_the_keyframes_near_a_turn_are_those_within_reach_of_a_turning_one():
     near = bench.near_turns(np.array([about_z(h) for h in headings]), 2)
     np.testing.assert_array_equal(np.flatnonzero(near), [3, 4, 5, 6, 7, 8])
     assert not bench.near_turns(np.array([about_z(0.1 * k) for k in range(5)]), 2).any()
+    # a sweeping bend turns 0.3 deg a keyframe (keyframes 3-5): a turn at 0.2 deg, none at the default 2 deg
+    sweep = np.array([about_z(h) for h in [0.0, 0.05, 0.1, 0.4, 0.7, 1.0, 1.05, 1.1]])
+    np.testing.assert_array_equal(np.flatnonzero(bench.near_turns(sweep, 0, turn_deg=0.2)), [3, 4, 5])
+    assert not bench.near_turns(sweep, 0).any()
