@@ -2,14 +2,15 @@
 frames before encoding (the image-conditions issue: H.264 footage maps short).
 
     python benchmarks/bench_codec_lag.py [--frames 200] [--crf 28] [--preset fisheye-straight] [--seed 1]
-                                         [--gap 7] [--blur 0] [--data /tmp/pipemap-bench-lag]
+                                         [--gap 7] [--blur 0] [--smooth 0] [--data /tmp/pipemap-bench-lag]
 
 Renders the preset's first frames as clean PNGs (cached under --data), encodes them with libx264 at --crf (or,
 with --blur S, replaces the codec by a Gaussian blur of sigma S px plus independent noise, as a control), and
 for corners taken every --gap frames tracks each one over the next --gap frames with the front end's anchor match
 (frontend/anchor.py: the patch where the corner was first seen, warped into the later frame) on the lighting-
 flattened images, four ways: clean patch into clean frame (the reference), clean into decoded, decoded into
-clean and decoded into decoded. Prints and writes (benchmarks/results/codec_lag.json) the mean displacement of
+clean and decoded into decoded; --smooth S blurs every frame, clean and decoded, by sigma S px first, as
+`frontend.smooth_sigma_px` does. Prints and writes (benchmarks/results/codec_lag.json) the mean displacement of
 each against the reference along the direction of motion, per frame gap: negative = behind, towards where the
 feature was. The pipeline's tracks are decoded-into-decoded.
 """
@@ -60,16 +61,19 @@ def degraded(frames: list[np.ndarray], args) -> list[np.ndarray]:
         return [fr.to_ndarray(format="gray") for fr in src.decode(video=0)]
 
 
-def flattened(image: np.ndarray) -> np.ndarray:
-    return flatten_lighting(image.astype(np.float32), 4.0, 0.0)[0]
+def flattened(image: np.ndarray, smooth: float) -> np.ndarray:
+    image = image.astype(np.float32)
+    if smooth > 0:
+        image = cv2.GaussianBlur(image, (0, 0), smooth)
+    return flatten_lighting(image, 4.0, 0.0)[0]
 
 
-def measure(clean: list[np.ndarray], coded: list[np.ndarray], gap: int) -> dict:
+def measure(clean: list[np.ndarray], coded: list[np.ndarray], gap: int, smooth: float = 0.0) -> dict:
     h, w = clean[0].shape
     lag = {(way, j): [] for way in WAYS for j in range(1, gap + 1)}
     for a in range(10, len(clean) - gap - 1, gap):
-        images = {"clean": [flattened(clean[a + j]) for j in range(gap + 1)],
-                  "decoded": [flattened(coded[a + j]) for j in range(gap + 1)]}
+        images = {"clean": [flattened(clean[a + j], smooth) for j in range(gap + 1)],
+                  "decoded": [flattened(coded[a + j], smooth) for j in range(gap + 1)]}
         start = cv2.goodFeaturesToTrack(clean[a], 400, 0.01, 8).reshape(-1, 2)
         r = np.hypot(start[:, 0] - w / 2, start[:, 1] - h / 2)
         start = start[(r > 70) & (r < 210)]  # the wall ring of the fisheye, away from the dark far end and the rim
@@ -103,6 +107,8 @@ def main() -> None:
     ap.add_argument("--gap", type=int, default=7, help="frames each corner is followed from its anchor frame")
     ap.add_argument("--blur", type=float, default=0.0, help="a Gaussian blur of this sigma (px) plus noise instead "
                     "of the codec (a control)")
+    ap.add_argument("--smooth", type=float, default=0.0, help="blur every frame by this sigma (px) before the "
+                    "matches, as frontend.smooth_sigma_px does")
     ap.add_argument("--preset", default="fisheye-straight")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--data", default="/tmp/pipemap-bench-lag")
@@ -110,15 +116,17 @@ def main() -> None:
     args = ap.parse_args()
     Path(args.data).mkdir(parents=True, exist_ok=True)
     clean = clean_frames(args)
-    lag = measure(clean, degraded(clean, args), args.gap)
+    lag = measure(clean, degraded(clean, args), args.gap, args.smooth)
     shown = [j for j in (1, 2, 3, 5, 7, 10, 14, 20, 28, 40) if j <= args.gap]
     label = f"blur {args.blur:g} px + noise" if args.blur > 0 else f"H.264 CRF {args.crf:g}"
+    label += f", frames smoothed {args.smooth:g} px" if args.smooth > 0 else ""
     print(f"{label}: mean displacement along the motion against clean->clean (px; negative = behind)")
     print("gap (frames)    " + " ".join(f"{j:>8d}" for j in shown))
     for way in WAYS:
         print(f"{way:<16s}" + " ".join(f"{lag[way][j]:+8.4f}" for j in shown))
     summary = {"benchmark": "codec_lag", "machine": platform.platform(), "cpus": os.cpu_count(),
-               "degradation": label, "preset": args.preset, "frames": len(clean), "seed": args.seed,
+               "degradation": label, "smooth_px": args.smooth, "preset": args.preset, "frames": len(clean),
+               "seed": args.seed,
                "lag_px": {way: {str(j): v for j, v in lag[way].items()} for way in WAYS}}
     Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json_out).write_text(json.dumps(summary, indent=2) + "\n")
