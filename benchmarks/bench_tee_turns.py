@@ -6,9 +6,9 @@ model.
 
 DATA is a simulated network dataset (ground_truth/poses.tum and network.yaml, its tees T1.. in the order the route
 passes them and section S<k> running from T<k> to T<k+1>). The front end's result (keyframes, classes) is cached
-under --cache, keyed by the dataset's folder name, and so is the straight VO's (keyed by the overrides it depends
-on), so that runs with other settings for the later stages skip them. Stage 2 (`map_network`) then runs with the
-settings given; no maps are written.
+under --cache, keyed by the dataset's path and the front end's overrides, and so is the straight VO's (keyed by the
+overrides it depends on), so that runs with other settings for the later stages skip them. Stage 2 (`map_network`)
+then runs with the settings given; no maps are written.
 
 Angles are signed turns about the loop's normal (the truth's z; in the estimate the first keyframe's view of it), in
 degrees, each against the truth's (error = estimate - truth). Per tee, for the VO's chaining (`vo`, before the tee
@@ -51,8 +51,18 @@ from pipemap.pipeline import map_network, section_bend, straight_vo, track_and_c
 from pipemap.trajectory import read_tum
 
 
-def front_end(data: Path, cache: Path, settings):
-    path = cache / f"{data.resolve().name}-frontend.pkl"
+FRONT_END = ("frontend.", "classification.", "seed=")  # overrides the front end's result depends on
+
+
+def _key(data: Path, overrides: list[str]) -> str:
+    """The cache name of a dataset under overrides: two datasets of one folder name are not one."""
+    resolved = data.resolve()
+    digest = hashlib.sha1(" ".join([str(resolved)] + sorted(overrides)).encode()).hexdigest()[:10]
+    return f"{resolved.name}-{digest}"
+
+
+def front_end(data: Path, cache: Path, settings, overrides: list[str] = ()):
+    path = cache / f"{_key(data, [o for o in overrides if o.startswith(FRONT_END)])}-frontend.pkl"
     if path.exists():
         return pickle.loads(path.read_bytes())
     front = track_and_classify(load_dataset(data), settings)
@@ -93,8 +103,7 @@ def track_spans(front) -> dict:
 
 def cached_vo(data: Path, cache: Path, front, dataset, settings, overrides: list[str]):
     """`straight_vo`'s result, cached by the dataset and the overrides it depends on."""
-    key = hashlib.sha1(" ".join(sorted(o for o in overrides if not o.startswith(AFTER_VO))).encode()).hexdigest()[:10]
-    path = cache / f"{data.resolve().name}-vo-{key}.pkl"
+    path = cache / f"{_key(data, [o for o in overrides if not o.startswith(AFTER_VO)])}-vo.pkl"
     if path.exists():
         return pickle.loads(path.read_bytes())
     vo = straight_vo(front, dataset, settings)
@@ -201,7 +210,7 @@ def measure(data: Path, cache: Path, overrides: list[str], track_keyframes: int 
     settings = load_settings(None, overrides)
     dataset = load_dataset(data)
     with threadpool_limits(1, user_api="blas"):
-        front = front_end(data, cache, settings)
+        front = front_end(data, cache, settings, overrides)
         keyed = list(overrides)
         if track_keyframes is not None:
             front = cut_tracks(front, track_keyframes)
