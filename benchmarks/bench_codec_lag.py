@@ -2,7 +2,8 @@
 frames before encoding (the image-conditions issue: H.264 footage maps short).
 
     python benchmarks/bench_codec_lag.py [--frames 200] [--crf 28] [--preset fisheye-straight] [--seed 1]
-                                         [--gap 7] [--blur 0] [--smooth 0] [--data /tmp/pipemap-bench-lag]
+                                         [--gap 7] [--blur 0] [--smooth 0] [--route forward] [--skip 0]
+                                         [--data /tmp/pipemap-bench-lag]
 
 Renders the preset's first frames as clean PNGs (cached under --data), encodes them with libx264 at --crf (or,
 with --blur S, replaces the codec by a Gaussian blur of sigma S px plus independent noise, as a control), and
@@ -10,9 +11,10 @@ for corners taken every --gap frames tracks each one over the next --gap frames 
 (frontend/anchor.py: the patch where the corner was first seen, warped into the later frame) on the lighting-
 flattened images, four ways: clean patch into clean frame (the reference), clean into decoded, decoded into
 clean and decoded into decoded; --smooth S blurs every frame, clean and decoded, by sigma S px first, as
-`frontend.smooth_sigma_px` does. Prints and writes (benchmarks/results/codec_lag.json) the mean displacement of
-each against the reference along the direction of motion, per frame gap: negative = behind, towards where the
-feature was. The pipeline's tracks are decoded-into-decoded.
+`frontend.smooth_sigma_px` does; --route and --skip N take the frames after the route's first N (the reverse leg of
+fisheye-straight's forward-reverse route: `--route forward-reverse --skip 480`). Prints and writes
+(benchmarks/results/codec_lag.json) the mean displacement of each against the reference along the direction of
+motion, per frame gap: negative = behind, towards where the feature was. The pipeline's tracks are decoded-into-decoded.
 """
 
 from __future__ import annotations
@@ -37,10 +39,11 @@ WAYS = ("clean->decoded", "decoded->clean", "decoded->decoded")
 
 
 def clean_frames(args) -> list[np.ndarray]:
-    root = Path(args.data) / f"{args.preset}-{args.frames}-s{args.seed}"
+    root = Path(args.data) / f"{args.preset}-{args.route or 'default'}-{args.skip + args.frames}-s{args.seed}"
     if not (root / "dataset.yaml").exists():
-        simulate(args.preset, root, width=640, height=480, frames=args.frames, seed=args.seed, workers=2)
-    return [f.image.astype(np.uint8) for f in load_dataset(root).frames()]
+        simulate(args.preset, root, width=640, height=480, frames=args.skip + args.frames, seed=args.seed, workers=2,
+                 route=args.route)
+    return [f.image.astype(np.uint8) for f in load_dataset(root).frames()][args.skip:]
 
 
 def degraded(frames: list[np.ndarray], args) -> list[np.ndarray]:
@@ -48,7 +51,7 @@ def degraded(frames: list[np.ndarray], args) -> list[np.ndarray]:
         rng = np.random.default_rng(args.seed)
         return [np.clip(np.rint(cv2.GaussianBlur(f.astype(np.float32), (0, 0), args.blur)
                                 + rng.normal(0.0, 2.0, f.shape)), 0, 255).astype(np.uint8) for f in frames]
-    path = Path(args.data) / f"lag-crf{args.crf:g}.mp4"
+    path = Path(args.data) / f"lag-crf{args.crf:g}-{args.route or 'default'}-{args.skip}.mp4"
     h, w = frames[0].shape
     with av.open(str(path), "w") as out:
         stream = out.add_stream("libx264", rate=8)
@@ -110,6 +113,8 @@ def main() -> None:
     ap.add_argument("--smooth", type=float, default=0.0, help="blur every frame by this sigma (px) before the "
                     "matches, as frontend.smooth_sigma_px does")
     ap.add_argument("--preset", default="fisheye-straight")
+    ap.add_argument("--route", default=None, help="the preset's route (default: its first)")
+    ap.add_argument("--skip", type=int, default=0, help="leave out the route's first N frames")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--data", default="/tmp/pipemap-bench-lag")
     ap.add_argument("--json-out", default=str(Path(__file__).parent / "results" / "codec_lag.json"))
@@ -125,7 +130,8 @@ def main() -> None:
     for way in WAYS:
         print(f"{way:<16s}" + " ".join(f"{lag[way][j]:+8.4f}" for j in shown))
     summary = {"benchmark": "codec_lag", "machine": platform.platform(), "cpus": os.cpu_count(),
-               "degradation": label, "smooth_px": args.smooth, "preset": args.preset, "frames": len(clean),
+               "degradation": label, "smooth_px": args.smooth, "preset": args.preset,
+               "route": args.route, "skip": args.skip, "frames": len(clean),
                "seed": args.seed,
                "lag_px": {way: {str(j): v for j, v in lag[way].items()} for way in WAYS}}
     Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
