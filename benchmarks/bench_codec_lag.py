@@ -2,7 +2,7 @@
 frames before encoding (the image-conditions issue: H.264 footage maps short).
 
     python benchmarks/bench_codec_lag.py [--frames 200] [--crf 28] [--preset fisheye-straight] [--seed 1]
-                                         [--gap 7] [--blur 0] [--smooth 0] [--route forward] [--skip 0]
+                                         [--gap 7] [--blur 0] [--smooth 0] [--route ROUTE] [--skip 0]
                                          [--data /tmp/pipemap-bench-lag]
 
 Renders the preset's first frames as clean PNGs (cached under --data), encodes them with libx264 at --crf (or,
@@ -130,9 +130,8 @@ def main() -> None:
     for way in WAYS:
         print(f"{way:<16s}" + " ".join(f"{lag[way][j]:+8.4f}" for j in shown))
     summary = {"benchmark": "codec_lag", "machine": platform.platform(), "cpus": os.cpu_count(),
-               "degradation": label, "smooth_px": args.smooth, "preset": args.preset,
-               "route": args.route, "skip": args.skip, "frames": len(clean),
-               "seed": args.seed,
+               "degradation": label, "smooth_px": args.smooth, "preset": args.preset, "route": args.route,
+               "skip": args.skip, "frames": len(clean), "seed": args.seed,
                "lag_px": {way: {str(j): v for j, v in lag[way].items()} for way in WAYS}}
     Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json_out).write_text(json.dumps(summary, indent=2) + "\n")
