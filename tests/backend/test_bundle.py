@@ -122,15 +122,32 @@ def test_sparse_block_sums_equal_bincount_sums():
 
 def test_camera_rows_times_a_matrix_equal_the_cameras_sums_of_outer_products_exactly():
     rng = np.random.default_rng(5)
-    cams = rng.integers(0, 9, 300)
+    seen = rng.permutation(9 * 40)[:300]  # each camera sees a point at most once
+    cams, pts = seen // 40, seen % 40
     cams[cams == 4] = 5  # a camera that sees nothing
-    st = SchurStructure(cams, rng.integers(0, 40, 300), 9, 40)
-    rows, right = rng.normal(size=(300, 6)), rng.normal(size=(300, 11))
-    want = st.to_cam(rows[:, :, None] * right[:, None, :]).reshape(54, 11)
+    st = SchurStructure(cams, pts, 9, 40)
+    rows, right = rng.normal(size=(300, 6)), rng.normal(size=(40, 11))
+    want = st.to_cam(rows[:, :, None] * right[pts][:, None, :]).reshape(54, 11)
     assert np.array_equal(st.cam_rows(rows) @ right, want)  # the same products summed in the same order
     assert not np.any(want[24:30])
     empty = SchurStructure(np.zeros(0, int), np.zeros(0, int), 2, 0)
     assert (empty.cam_rows(np.zeros((0, 6))) @ np.zeros((0, 3))).shape == (12, 3)
+
+
+def test_sums_taken_a_run_of_bins_at_a_time_equal_the_whole_sums_exactly():
+    from pipemap.solvers.schur import BlockSummer, RunSummer
+
+    rng = np.random.default_rng(8)
+    key = rng.integers(0, 50, 1000)
+    key[key == 7] = 8  # an empty bin
+    key[:40] = 3  # a bin with more items than a run holds
+    left, right = rng.normal(size=(1000, 6, 3)), rng.normal(size=(1000, 3, 6))
+    want = BlockSummer(key, 50)(left @ right)
+    for budget in (1, 16, 37, 5000):
+        runs = RunSummer(key, 50, max_items=budget)
+        assert np.array_equal(runs(lambda i: left[i] @ right[i], (6, 6)), want)
+    assert not np.any(want[7])
+    assert RunSummer(np.zeros(0, int), 4)(lambda i: left[i] @ right[i], (6, 6)).shape == (4, 6, 6)
 
 
 def test_observation_pairs_lists_each_pair_of_the_same_point_once():

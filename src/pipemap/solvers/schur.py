@@ -48,6 +48,38 @@ class BlockSummer:
         return np.asarray(out).reshape((self.n,) + blocks.shape[1:])
 
 
+class RunSummer:
+    """`BlockSummer`'s sums of blocks formed on demand, at most `max_items` items' blocks at a time: the pairs of
+    observations of a point run to a million in a long section's solve, and their 6x6 products with the two
+    factors gathered for them had taken most of its memory (0.6 GB). The bins are taken in runs whose items fit the
+    budget; each bin sums its items in the order `BlockSummer` does (ascending), so the sums are the same to the
+    last bit."""
+
+    def __init__(self, index: np.ndarray, n: int, max_items: int = 1 << 16):
+        index = np.asarray(index, np.int64)
+        self.n = n
+        self.order = np.argsort(index, kind="stable")
+        ends = np.cumsum(np.bincount(index, minlength=n))
+        self.runs = []  # (first bin, bin after the last, first item, item after the last, CSR row pointers)
+        first = 0
+        while first < n:
+            start = int(ends[first - 1]) if first else 0
+            last = min(max(int(np.searchsorted(ends, start + max_items, side="right")), first + 1), n)
+            self.runs.append((first, last, start, int(ends[last - 1]), np.r_[0, ends[first:last] - start]))
+            first = last
+
+    def __call__(self, blocks_of, shape: tuple[int, ...]) -> np.ndarray:
+        """(n,) + shape: per bin, the sum of blocks_of(items) (len(items),) + shape over its items."""
+        size = int(np.prod(shape))
+        out = np.zeros((self.n, size))
+        for first, last, i0, i1, indptr in self.runs:
+            if i1 > i0:
+                blocks = np.ascontiguousarray(blocks_of(self.order[i0:i1])).reshape(i1 - i0, size)
+                A = sp.csr_matrix((np.ones(i1 - i0), np.arange(i1 - i0), indptr), shape=(last - first, i1 - i0))
+                out[first:last] = A @ blocks
+        return out.reshape((self.n,) + tuple(shape))
+
+
 class SchurStructure:
     """What stays fixed while the inlier set does: observation pairs and the summing operators.
 
@@ -60,13 +92,15 @@ class SchurStructure:
         self.a, self.b = observation_pairs(self.obs_pt)
         self.to_cam = BlockSummer(self.obs_cam, n_cams)
         self.to_point = BlockSummer(self.obs_pt, n_points)
-        self.to_pair = BlockSummer(self.obs_cam[self.a] * n_cams + self.obs_cam[self.b], n_cams * n_cams)
+        self.pair_runs = RunSummer(self.obs_cam[self.a] * n_cams + self.obs_cam[self.b], n_cams * n_cams)
         self._rows6: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def cam_rows(self, blocks: np.ndarray) -> sp.csr_matrix:
-        """The observations' rows (Kf, 6) as a sparse (6 C, Kf) matrix, row 6 c + i holding row i of camera c's
-        observations in their order: its product with a (Kf, q) matrix is to_cam of their outer products,
-        summed in the same order (the same values), without the (Kf, 6, q) products themselves."""
+        """The observations' rows (Kf, 6) as a sparse (6 C, M) matrix, row 6 c + i holding row i of camera c's
+        observations in their order, each in its point's column: its product with a (M, q) matrix is to_cam of the
+        outer products of the rows with the (Kf, q) rows of their points, summed in the same order (the same
+        values), without the (Kf, 6, q) products or the (Kf, q) rows themselves. The entries stay in that order
+        (a camera sees a point once, so no two share a column), which the sparse product follows."""
         if self._rows6 is None:
             by_cam = np.argsort(self.obs_cam, kind="stable")
             counts = np.repeat(np.bincount(self.obs_cam, minlength=self.C), 6)  # per row (c, i)
@@ -74,9 +108,9 @@ class SchurStructure:
             row = np.repeat(np.arange(6 * self.C), counts)
             # entry j of row (c, i) is camera c's j-th observation, whose block starts at indptr[6 c] / 6
             cols = by_cam[indptr[row - row % 6] // 6 + np.arange(len(row)) - indptr[row]]
-            self._rows6 = cols * 6 + row % 6, cols, indptr
-        take, cols, indptr = self._rows6
-        return sp.csr_matrix((blocks.reshape(-1)[take], cols, indptr), shape=(6 * self.C, len(self.obs_cam)))
+            self._rows6 = cols * 6 + row % 6, self.obs_pt[cols], indptr
+        take, points, indptr = self._rows6
+        return sp.csr_matrix((blocks.reshape(-1)[take], points, indptr), shape=(6 * self.C, self.M))
 
 
 def observation_pairs(point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -144,7 +178,7 @@ def solve_damped(eq: NormalEquations, structure: SchurStructure, lam: float):
         Ud = eq.U + (lam * diagU)[:, :, None] * np.eye(6)
         Wt = transposed(eq.W)
         diag_blocks = Ud - st.to_cam(Y @ Wt)
-        cross = st.to_pair(Y[st.a] @ Wt[st.b])
+        cross = st.pair_runs(lambda i: Y[st.a[i]] @ Wt[st.b[i]], (6, 6))
         cross = cross.reshape(C, C, 6, 6).transpose(0, 2, 1, 3).reshape(6 * C, 6 * C)
         S[: 6 * C, : 6 * C] = -(cross + cross.T)
         idx = np.arange(C)
@@ -159,7 +193,7 @@ def solve_damped(eq: NormalEquations, structure: SchurStructure, lam: float):
         S[6 * C:, 6 * C:] = eq.Ux + lam * np.diag(np.diag(eq.Ux)) - (A * np.einsum("mi,mi->m", r, P)[:, None]).T @ A
         if C:
             a = np.einsum("kij,kj->ki", Y, P[eq.obs_pt])
-            cx = st.cam_rows(a) @ A[eq.obs_pt]
+            cx = st.cam_rows(a) @ A
             S[: 6 * C, 6 * C:] = -cx
             S[6 * C:, : 6 * C] = -cx.T
         rhs[6 * C:] = -eq.gx + A.T @ np.einsum("mi,mi->m", r, eq.gp)
