@@ -29,6 +29,8 @@ def test_the_two_legs_of_a_reversal_close_a_loop(reversal):
     data, res = reversal
     run = json.loads((res.out_dir / "run.json").read_text())
     assert run["loop_closure"]["status"] == "closed" and run["loop_closure"]["edges"] >= 5
+    # the section the crawler turned back in was solved whole once the VO ended (straight_vo.whole_turn_back_m)
+    assert any(w["first"] == 0 and w["last"] == run["keyframes"] - 1 for w in run["windows"])
     d = evaluate(res.out_dir, data).distance
     assert d.forward.abs_error_pct < 0.2 and d.reverse.abs_error_pct < 0.2
     assert abs(d.forward.abs_error_pct - d.reverse.abs_error_pct) < 0.03

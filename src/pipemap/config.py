@@ -308,6 +308,16 @@ class StraightVOSettings(_Section):
                                         "straight_vo_settings)")
     wall_slice_m: float = Field(0.04, gt=0, description="length of the slices of wall ahead that wall_inward_m "
                                 "judges, half-overlapping")
+    whole_turn_back_m: float | None = Field(0.2, gt=0, description="a straight section in which the crawler turned "
+                                            "back by more than this along the pipe is solved whole once the VO ends "
+                                            "(a camera that sees the wall beside it; None: never): the windows, "
+                                            "each holding poses solved before the other leg saw their wall, left "
+                                            "the last 0.5 m before the turning point 0.4 % short on compressed "
+                                            "footage (fisheye-straight as H.264, seeds 1 / 2, forward / reverse: "
+                                            "+0.009 / +0.019, -0.054 / -0.050 -> +0.008 / +0.008, -0.039 / -0.039 %)")
+    whole_max_keyframes: int = Field(400, gt=1, description="... a section of at most this many keyframes (the "
+                                     "solve's camera system grows with their square; over a longer section the "
+                                     "turning point's millimetre is a smaller share of the distance)")
     beside_tracking: bool = Field(True, description="run in a second process while the front end tracks, fed "
                                   "each keyframe once its class is final (the same result; not in a batch's "
                                   "runs, whose workers keep every core busy already)")

@@ -313,6 +313,8 @@ def map_network(front: FrontEndResult, dataset: Dataset, settings: Settings,
     sections' cylinders and the tee centres (III-D), the tee model and loop closure on the map.
     `straight`: `straight_vo`'s result, when it was already run with these settings."""
     vo, result, bends = straight if straight is not None else straight_vo(front, dataset, settings)
+    if vo.solve_turning_sections():
+        result = vo.result()
     t = time.perf_counter()
 
     def fitted_sections(poses: np.ndarray, points: np.ndarray) -> list[MappedSection]:

@@ -178,3 +178,13 @@ def test_a_bad_radius_is_a_clear_error(radius):
 def test_fit_rejects_too_few_points():
     with pytest.raises(ValueError, match="at least 5"):
         fit_cylinder(np.zeros((3, 3)), RADIUS)
+
+
+def test_a_path_that_turned_back_keeps_its_chord_along_the_pipe():
+    from pipemap.geometry.cylinder import foremost, path_chord
+
+    along = np.r_[np.linspace(0.0, 2.0, 41), np.linspace(1.95, 0.0, 40)]
+    path = np.c_[0.001 * np.sin(np.arange(81)), np.zeros(81), along]
+    assert foremost(path) == 40
+    assert np.allclose(path_chord(path), path[40] - path[0])
+    assert foremost(path[:30]) == 29  # one way: the last centre

@@ -351,3 +351,41 @@ def test_the_cylinder_term_can_stop_short_of_the_wall_ahead_of_a_window():
     wall = vo._straight_wall(tids, 0, 20, 40)
     assert 0 < wall.sum() < len(tids)
     assert np.array_equal(wall, X[:, 2] <= c[20, 2] + 0.1)
+
+
+def test_a_window_the_crawler_turned_back_in_holds_the_wall_ahead_of_its_foremost_camera():
+    """Cameras 0-20 drive 1 m along the pipe and 21-40 come back to 3 mm beside where 0 began: the way from the first
+    camera to the last says nothing of the pipe's direction, so the wall ahead is measured from camera 20 along the
+    way there."""
+    vo, tids, c = _tail_state(0.0, 1.0)
+    vo._metric = True
+    back = c[40 - np.arange(21, 41)] + np.array([0.003, 0.0, 0.0])
+    vo.c = [ck.copy() for ck in c[:21]] + list(back)
+    vo.s = load_settings(overrides=["straight_vo.wall_ahead_m=0.1"]).straight_vo
+    X = vo._X[tids]
+    wall = vo._straight_wall(tids, 0, 40, 40)
+    assert 0 < wall.sum() < len(tids)
+    assert np.array_equal(wall, X[:, 2] <= c[20, 2] + 0.1)
+
+
+def test_how_far_a_path_came_back_along_its_pipe():
+    from pipemap.backend.section_vo import _turn_back_m
+
+    along = np.r_[np.linspace(0.0, 1.0, 50), np.linspace(1.0, 0.6, 20)]
+    wobble = 0.002 * np.sin(np.arange(len(along)))
+    there_and_back = np.stack([wobble, -wobble, along], axis=1)
+    assert _turn_back_m(there_and_back) == pytest.approx(0.4, abs=0.01)
+    assert _turn_back_m(there_and_back[:50]) == pytest.approx(0.0, abs=1e-9)
+    assert _turn_back_m(there_and_back[::-1]) == pytest.approx(0.4, abs=0.01)  # backing in, then driving out
+
+
+def test_a_section_driven_one_way_is_not_solved_again(straight_run):
+    """solve_turning_sections touches only a section in which the crawler turned back: this render drives one way."""
+    ds, keyframes = straight_run
+    vo = StraightVO(ds.camera, ds.radius_m, load_settings())
+    for kf in keyframes:
+        vo.add(kf)
+    before = vo.finish()
+    assert not vo.solve_turning_sections()
+    after = vo.result()
+    assert np.array_equal(before.poses, after.poses) and np.array_equal(before.points, after.points)

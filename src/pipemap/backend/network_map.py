@@ -26,7 +26,7 @@ import numpy as np
 
 from pipemap.frontend.tracks import Keyframe
 from pipemap.geometry.bend import fit_bend
-from pipemap.geometry.cylinder import Cylinder, CylinderFit, axis_frame, fit_cylinder
+from pipemap.geometry.cylinder import Cylinder, CylinderFit, axis_frame, fit_cylinder, path_chord
 
 STRAIGHT_THROUGH_DEG = 20.0  # axes closer to parallel than this cannot place a tee centre
 KINK_CHI2 = 13.8  # chi-square, 2 degrees of freedom, p = 0.001: the end's two directions differ beyond noise
@@ -115,15 +115,8 @@ def section_points(keyframes: list[Keyframe], first: int, last: int, tids: np.nd
     return pos[ok]
 
 
-def _chord(centres: np.ndarray) -> np.ndarray:
-    """The camera path's extent along the pipe: from its first centre to the centre farthest from it. A robot
-    that drives on and comes back ends near where it began, so its last centre says nothing of how far it went."""
-    far = int(np.argmax(np.linalg.norm(centres - centres[0], axis=1)))
-    return centres[far] - centres[0]
-
-
 def _fit(points: np.ndarray, centres: np.ndarray, R_ref, c_ref, radius: float, huber: float) -> CylinderFit | None:
-    direction = _chord(centres)
+    direction = path_chord(centres)
     if len(points) < 20 or np.linalg.norm(direction) < 2 * radius * 0.25:
         return None
     try:
@@ -183,8 +176,8 @@ def _fit_bend(cyl: Cylinder, points: np.ndarray, huber: float, knot_m: float, ki
 
 
 def _near_path(points: np.ndarray, centres: np.ndarray, margin: float) -> np.ndarray:
-    """Points whose projection on the path's chord (`_chord`) falls within the centres' (+- margin)."""
-    d = _chord(centres)
+    """Points whose projection on the path's chord (`path_chord`) falls within the centres' (+- margin)."""
+    d = path_chord(centres)
     L = np.linalg.norm(d)
     if L <= 0:
         return np.zeros(len(points), bool)

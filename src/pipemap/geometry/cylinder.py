@@ -230,6 +230,19 @@ class CylinderFit:
     covariance: np.ndarray | None = None
 
 
+def foremost(centres: np.ndarray) -> int:
+    """Index of the camera centre (N, 3) farthest from the first: the last one unless the robot turned back on
+    the way, when where it ended says nothing of the pipe's direction (it drove on and came back)."""
+    c = np.asarray(centres, float)
+    return int(np.argmax(np.linalg.norm(c - c[0], axis=1)))
+
+
+def path_chord(centres: np.ndarray) -> np.ndarray:
+    """The camera path's extent along the pipe: from its first centre (N, 3) to the one farthest from it."""
+    c = np.asarray(centres, float)
+    return c[foremost(c)] - c[0]
+
+
 def axis_frame(direction: np.ndarray) -> np.ndarray:
     """A rotation whose z axis is `direction`."""
     hint = _EY if abs(direction @ _EY) < 0.9 else _EX
