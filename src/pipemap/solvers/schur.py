@@ -92,6 +92,7 @@ class SchurStructure:
         self.a, self.b = observation_pairs(self.obs_pt)
         self.to_cam = BlockSummer(self.obs_cam, n_cams)
         self.to_point = BlockSummer(self.obs_pt, n_points)
+        self.cam_runs = RunSummer(self.obs_cam, n_cams)
         self.pair_runs = RunSummer(self.obs_cam[self.a] * n_cams + self.obs_cam[self.b], n_cams * n_cams)
         self._rows6: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
@@ -176,11 +177,12 @@ def solve_damped(eq: NormalEquations, structure: SchurStructure, lam: float):
     if C:
         diagU = np.einsum("cii->ci", eq.U)
         Ud = eq.U + (lam * diagU)[:, :, None] * np.eye(6)
-        Wt = transposed(eq.W)
-        diag_blocks = Ud - st.to_cam(Y @ Wt)
-        cross = st.pair_runs(lambda i: Y[st.a[i]] @ Wt[st.b[i]], (6, 6))
+        diag_blocks = Ud - st.cam_runs(lambda i: Y[i] @ transposed(eq.W[i]), (6, 6))
+        cross = st.pair_runs(lambda i: Y[st.a[i]] @ transposed(eq.W[st.b[i]]), (6, 6))
         cross = cross.reshape(C, C, 6, 6).transpose(0, 2, 1, 3).reshape(6 * C, 6 * C)
-        S[: 6 * C, : 6 * C] = -(cross + cross.T)
+        np.add(cross, cross.T, out=S[: 6 * C, : 6 * C])
+        np.negative(S[: 6 * C, : 6 * C], out=S[: 6 * C, : 6 * C])
+        del cross
         idx = np.arange(C)
         S6 = S[: 6 * C, : 6 * C].reshape(C, 6, C, 6)
         S6[idx, :, idx, :] += diag_blocks

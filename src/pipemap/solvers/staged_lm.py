@@ -48,6 +48,7 @@ def solve_in_stages(state, context, *, cost: Callable, linearise: Callable, solv
         for _ in range(max(budget, 1)):
             if iterations >= max_iterations:
                 break
+            eq = delta = None  # the last step's equations let go before the next are built
             eq = linearise(state, context)
             accepted = False
             while lam < 1e12:
