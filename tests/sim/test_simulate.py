@@ -82,6 +82,18 @@ def test_forward_reverse_drives_back_facing_forward():
     assert np.all(R[:, 0, 0] > 0.99) and np.all(R[:, 2, 2] > 0.99)
 
 
+def test_a_recheck_backs_up_and_drives_on_before_it_comes_back_out():
+    p = plan("fisheye-straight", route="recheck", seed=1, width=160, height=120)
+    s = (p.trajectory.positions - p.trajectory.positions[0]) @ np.array([1.0, 0.0, 0.0])
+    turns = np.flatnonzero(np.diff(np.sign(np.diff(s[np.r_[True, np.diff(s) != 0]]))))
+    assert len(turns) == 3  # in, back, on, out
+    assert s.max() == pytest.approx(4.5, abs=1e-3) and abs(s[-1]) < 1e-3  # the pipe sags a little
+    way = s[np.r_[True, np.diff(s) != 0]]
+    assert np.allclose(way[turns + 1], [2.5, 1.5, 4.5], atol=1e-3)
+    R = p.trajectory.rotations  # facing the same way throughout
+    assert np.all(R[:, :, 2] @ np.array([1.0, 0.0, 0.0]) > 0.99)
+
+
 def test_same_seed_same_bytes_other_seed_other_noise(tmp_path):
     def digest(folder):
         return [hashlib.sha256(f.read_bytes()).hexdigest() for f in sorted((folder / "images").glob("*.png"))]

@@ -287,8 +287,9 @@ def _elbow_cross(width, height, route, seed):
 
 def _fisheye_straight(width, height, route, seed):
     scene = straight_scene(6.0, 0.2, piece_length=2.0, sag_m=0.003, misalign_m=0.0015, seed=seed)
+    # recheck: in to 3 m, back to 2 m to look again, on to the end and back out
     drive = Drive(spacing_m=0.01, offset_down_m=0.04, look="forward", start_m=0.5, end_m=5.0,
-                  reverse=route == "forward-reverse")
+                  reverse=route != "forward", turns_m=(3.0, 2.0) if route == "recheck" else ())
     return Setup("fisheye-straight", scene, fisheye_camera(width, height), scene.runs["S1"], drive,
                  Appearance(mm_per_px=1.0), 7.5)
 
@@ -449,8 +450,8 @@ register_preset("paper-straight-6in", "2010 report pipe 1: 6 m x 153.32 mm, pers
                 ("forward", "forward-reverse"), _six_inch)
 register_preset("paper-straight-16in", "2010 report pipe 2: 4 m x 387.56 mm, perspective 640x480 25 deg, 4 LEDs",
                 ("forward-reverse", "forward"), _sixteen_inch)
-register_preset("fisheye-straight", "one straight 6 m x 400 mm pipe, 190 deg fisheye 1280x960",
-                ("forward", "forward-reverse"), _fisheye_straight)
+register_preset("fisheye-straight", "one straight 6 m x 400 mm pipe, 190 deg fisheye 1280x960 (recheck: in to 3 m, "
+                "back to 2 m, on to 5 m and back out)", ("forward", "forward-reverse", "recheck"), _fisheye_straight)
 register_preset("deformed-pipe", "straight 300 mm pipe, fisheye 640x480: round pieces between a 3 % and a 6 % "
                 "oval piece and one with a 10 mm dent; routes short, tiny: pieces at 0.6, 0.4 of their length",
                 ("full", "short", "tiny"), _deformed)

@@ -140,6 +140,8 @@ class Drive:
     start_m: float = 0.0  # distance along the path where the drive starts ...
     end_m: float | None = None  # ... and ends (None: the path's end; negative: from the end)
     reverse: bool = False  # forward and reverse: drive back to the start facing forward
+    turns_m: tuple[float, ...] = ()  # on the way from start_m to end_m, stop at each of these and drive on back
+    # to the next (an inspector backing up to look again at something passed), facing forward throughout
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -147,7 +149,7 @@ class Drive:
 
 def drive_distances(length: float, drive: Drive, seed: int, max_frames: int | None = None) -> np.ndarray:
     """Arc length of every frame: accelerate, cruise with smooth speed changes, stop at the end
-    (and, for a forward-and-reverse run, pause and come back)."""
+    (and, for a forward-and-reverse run, pause and come back); at each of `turns_m` pause and drive on the other way."""
     if not drive.spacing_m > 0:
         raise PipemapError(f"frame spacing must be positive, got {drive.spacing_m}", key="spacing_m")
     rng = np.random.default_rng([int(seed) % 2**63, 7])
@@ -155,7 +157,10 @@ def drive_distances(length: float, drive: Drive, seed: int, max_frames: int | No
     s1 = length if drive.end_m is None else min(drive.end_m if drive.end_m >= 0 else length + drive.end_m, length)
     if not s1 > s0:
         raise PipemapError(f"the route is empty ({s0:.3f} m to {s1:.3f} m)")
-    legs = [(s0, s1)] + ([(s1, s0)] if drive.reverse else [])
+    stops = [s0, *drive.turns_m, s1] + ([s0] if drive.reverse else [])
+    if any(not s0 <= t <= s1 for t in drive.turns_m):
+        raise PipemapError(f"turning points {list(drive.turns_m)} must lie on the route ({s0:.3f} m to {s1:.3f} m)")
+    legs = [(a, b) for a, b in zip(stops[:-1], stops[1:]) if a != b]
     out: list[float] = []
     for leg, (a, b) in enumerate(legs):
         total = abs(b - a)
@@ -171,7 +176,7 @@ def drive_distances(length: float, drive: Drive, seed: int, max_frames: int | No
             d = np.concatenate([d[:-2], [total]])  # no tiny last step
         pos = a + np.sign(b - a) * d
         if leg:
-            out += [s1] * drive.pause_frames
+            out += [a] * drive.pause_frames
             pos = pos[1:]
         out += list(pos)
         if max_frames is not None and len(out) >= max_frames:
